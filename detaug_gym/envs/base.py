@@ -1,0 +1,286 @@
+"""The gymnasium env shared by the SafeLIBERO-style suites and the Newton-style pick-and-place.
+
+Subclasses say how to build a :class:`~detaug_gym.envs.scene.Scene` for a task and how to sample an
+episode (task, init state, obstacle); this class owns everything else: the Dict observation, action
+checks, the control loop (fast or stock OSC_POSE), SafeLIBERO's collision rule and the info metrics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from detaug_gym.envs.control import make_stepper
+from detaug_gym.envs.obstacles import (
+    OBSTACLE_POINTS,
+    OBSTACLE_TYPES,
+    activate,
+    check_obstacle_type,
+    raise_pedestal,
+)
+from detaug_gym.envs.placement import Placement, PlacementProblem, place_obstacle
+from detaug_gym.envs.scene import SETTLE_ACTION, Scene
+
+ACTION_DIM = 7
+SETTLE_STEPS = 10
+COLLISION_DISPLACEMENT = 1e-3  # m, SafeLIBERO: summed absolute displacement of the obstacle
+
+
+@dataclass
+class Episode:
+    """What one reset decided; reported in ``info`` and recorded by the bench."""
+
+    task: int
+    init_state: int
+    obstacle: str | None
+    placement: Placement | None
+
+
+class ObstacleManipulationEnv(gym.Env):
+    """Franka Panda manipulation with OSC_POSE delta actions and an optional obstacle.
+
+    Observation (``spaces.Dict``, float32):
+        ``robot_joint_pos`` (7,), ``robot_joint_vel`` (7,), ``gripper_qpos`` (2,), ``eef_pos`` (3,),
+        ``eef_quat`` (4,) xyzw, ``object_poses`` (S, 7) pos + xyzw quat of the task-relevant objects,
+        ``object_mask`` (S,), ``task_id`` (T,) one-hot, ``obstacle_points`` (256, 3) world-frame surface
+        samples, ``obstacle_pose`` (7,), ``obstacle_size`` (3,) half-extents, ``obstacle_mask`` (1,).
+        Obstacle entries are zero (mask 0) without an obstacle.
+    Action: ``Box(-1, 1, (7,))``: OSC_POSE delta (scaled to 0.05 m / 0.5 rad per step) and the gripper
+        (-1 open, +1 close). Wrong shapes and non-finite values raise ``ValueError``.
+    Info (every step): ``is_success``, ``collision`` (latched), ``robot_obstacle_contact``,
+        ``obstacle_displacement``, ``min_clearance`` (m, robot collision geometry to the obstacle; inf
+        without one), ``task``, ``init_state``, ``obstacle``.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(self, *, num_tasks: int, object_slots: int, max_steps: int, level: str,
+                 obstacle: str | list[str] | None = None, controller: str = "stock",
+                 render_mode: str | None = None) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"unknown render_mode {render_mode!r}; valid: None, 'rgb_array'")
+        self.render_mode = render_mode
+        self.level = level
+        self.max_steps = int(max_steps)
+        self.controller = controller
+        self.num_tasks = num_tasks
+        self.object_slots = object_slots
+        self.obstacle_choices = self._obstacle_choices(obstacle)
+        self.observation_space = spaces.Dict({
+            "robot_joint_pos": _box(7),
+            "robot_joint_vel": _box(7),
+            "gripper_qpos": _box(2),
+            "eef_pos": _box(3),
+            "eef_quat": _box(4, -1.0, 1.0),
+            "object_poses": _box((object_slots, 7)),
+            "object_mask": _box(object_slots, 0.0, 1.0),
+            "task_id": _box(num_tasks, 0.0, 1.0),
+            "obstacle_points": _box((OBSTACLE_POINTS, 3)),
+            "obstacle_pose": _box(7),
+            "obstacle_size": _box(3, 0.0, np.inf),
+            "obstacle_mask": _box(1, 0.0, 1.0),
+        })
+        self.action_space = spaces.Box(-1.0, 1.0, (ACTION_DIM,), dtype=np.float32)
+        self._scenes: dict[int, Scene] = {}
+        self._steppers: dict[int, object] = {}
+        self.scene: Scene | None = None
+        self.episode: Episode | None = None
+        self._renderer = None
+        self._steps = 0
+
+    # ------------------------------------------------------------------ to implement
+    def _build_scene(self, task: int) -> Scene:
+        raise NotImplementedError
+
+    def _sample_episode(self, rng: np.random.Generator, options: dict) -> tuple[int, int]:
+        """Return ``(task, init_state index)`` for a new episode."""
+        raise NotImplementedError
+
+    def _load_init_state(self, scene: Scene, task: int, init_state: int, rng: np.random.Generator) -> None:
+        raise NotImplementedError
+
+    def _placement_problem(self, scene: Scene, rng: np.random.Generator) -> PlacementProblem:
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = dict(options or {})
+        rng = self.np_random
+        task, init_state = self._sample_episode(rng, options)
+        scene = self._scene(task)
+        self.scene = scene
+        scene.reset_dynamics()
+        self._load_init_state(scene, task, init_state, rng)
+        obstacle, placement = None, None
+        if scene.obstacles and self.level in ("L1", "L2"):
+            obstacle = options.get("obstacle") or self.obstacle_choices[int(rng.integers(len(self.obstacle_choices)))]
+            check_obstacle_type(obstacle)
+            mujoco.mj_forward(scene.model, scene.data)
+            placement = self._place(scene, obstacle, rng)
+        self.episode = Episode(task, init_state, obstacle, placement)
+        mujoco.mj_forward(scene.model, scene.data)
+        stepper = self._steppers[task]
+        stepper.reset()
+        for _ in range(SETTLE_STEPS):
+            stepper.step(SETTLE_ACTION)
+        self._steps = 0
+        self._obstacle_ref = self._obstacle_position()
+        self._collided = False
+        return self._observation(), self._info(contact=False)
+
+    def step(self, action):
+        if self.scene is None:
+            raise RuntimeError("call reset() before step()")
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (ACTION_DIM,):
+            raise ValueError(f"action must have shape ({ACTION_DIM},), got {action.shape}")
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"action must be finite, got {action}")
+        self._steppers[self.episode.task].step(np.clip(action, -1.0, 1.0))
+        self._steps += 1
+        contact = self._robot_obstacle_contact()
+        info = self._info(contact=contact)
+        terminated = bool(info["is_success"])
+        truncated = self._steps >= self.max_steps and not terminated
+        return self._observation(), float(terminated), terminated, truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array" or self.scene is None:
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.scene.model, 256, 256)
+        camera = "agentview" if mujoco.mj_name2id(self.scene.model, mujoco.mjtObj.mjOBJ_CAMERA, "agentview") >= 0 else -1
+        self._renderer.update_scene(self.scene.data, camera=camera)
+        return self._renderer.render()
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        for scene in self._scenes.values():
+            scene.sim_env.close()
+        self._scenes.clear()
+        self._steppers.clear()
+        self.scene = None
+
+    # ------------------------------------------------------------------ state access for data tools
+    def get_state(self) -> np.ndarray:
+        """Flattened simulator state ``[time, qpos, qvel]`` of the current scene."""
+        return self.scene.get_state()
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Load a flattened state into the current scene and recompute derived quantities."""
+        self.scene.set_state(state)
+        mujoco.mj_forward(self.scene.model, self.scene.data)
+
+    # ------------------------------------------------------------------ internals
+    def _scene(self, task: int) -> Scene:
+        if task not in self._scenes:
+            scene = self._build_scene(task)
+            self._scenes[task] = scene
+            self._steppers[task] = make_stepper(self.controller, scene)
+        return self._scenes[task]
+
+    def _obstacle_choices(self, obstacle) -> tuple[str, ...]:
+        if obstacle is None:
+            return OBSTACLE_TYPES
+        chosen = (obstacle,) if isinstance(obstacle, str) else tuple(obstacle)
+        if not chosen:
+            raise ValueError(f"obstacle must name at least one type; valid types: {', '.join(OBSTACLE_TYPES)}")
+        return tuple(check_obstacle_type(o) for o in chosen)
+
+    def _place(self, scene: Scene, obstacle: str, rng: np.random.Generator) -> Placement:
+        handle = scene.obstacles[obstacle]
+        problem = self._placement_problem(scene, rng)
+        placement = place_obstacle(problem, handle.half_extents, self.level, rng)
+        fp = placement.footprint
+        corners = [fp.center, fp.lo, fp.hi, np.array([fp.lo[0], fp.hi[1]]), np.array([fp.hi[0], fp.lo[1]])]
+        support = max(scene.support_height(c) for c in corners)
+        if placement.pedestal is not None:
+            support = raise_pedestal(scene.model, scene.pedestals[placement.pedestal], placement.xy,
+                                     placement.yaw, support)
+        activate(scene.model, scene.data, handle, placement.xy, placement.yaw, support)
+        return placement
+
+    def _active_obstacle(self):
+        if self.episode is None or self.episode.obstacle is None:
+            return None
+        return self.scene.obstacles[self.episode.obstacle]
+
+    def _obstacle_position(self) -> np.ndarray | None:
+        handle = self._active_obstacle()
+        return None if handle is None else self.scene.data.xpos[handle.body_id].copy()
+
+    def _obstacle_geoms(self) -> np.ndarray:
+        handle = self._active_obstacle()
+        geoms = list(handle.geom_ids)
+        if self.episode.placement.pedestal is not None:
+            geoms.append(self.scene.pedestals[self.episode.placement.pedestal].geom_id)
+        return np.array(geoms)
+
+    def _robot_obstacle_contact(self) -> bool:
+        if self._active_obstacle() is None:
+            return False
+        mask = np.zeros(self.scene.model.ngeom, dtype=bool)
+        mask[self._obstacle_geoms()] = True
+        return self.scene.robot_touches(mask)
+
+    def _info(self, contact: bool) -> dict:
+        displacement = 0.0
+        clearance = float("inf")
+        if self._active_obstacle() is not None:
+            displacement = float(np.abs(self._obstacle_position() - self._obstacle_ref).sum())
+            clearance = self.scene.min_distance(self._obstacle_geoms())
+        self._collided = self._collided or displacement > COLLISION_DISPLACEMENT
+        return {
+            "is_success": bool(self.scene.success_fn()),
+            "collision": self._collided,
+            "robot_obstacle_contact": bool(contact),
+            "obstacle_displacement": displacement,
+            "min_clearance": clearance,
+            "task": self.episode.task,
+            "init_state": self.episode.init_state,
+            "obstacle": self.episode.obstacle,
+        }
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        scene = self.scene
+        d = scene.data
+        eef_pos, eef_quat = scene.eef_pose()
+        poses, mask = scene.tracked_poses(self.object_slots)
+        task_id = np.zeros(self.num_tasks)
+        task_id[self.episode.task] = 1.0
+        obs = {
+            "robot_joint_pos": d.qpos[scene.arm_qpos],
+            "robot_joint_vel": d.qvel[scene.arm_qvel],
+            "gripper_qpos": d.qpos[scene.gripper_qpos],
+            "eef_pos": eef_pos,
+            "eef_quat": eef_quat,
+            "object_poses": poses,
+            "object_mask": mask,
+            "task_id": task_id,
+            "obstacle_points": np.zeros((OBSTACLE_POINTS, 3)),
+            "obstacle_pose": np.zeros(7),
+            "obstacle_size": np.zeros(3),
+            "obstacle_mask": np.zeros(1),
+        }
+        handle = self._active_obstacle()
+        if handle is not None:
+            rot = d.xmat[handle.body_id].reshape(3, 3)
+            pos = d.xpos[handle.body_id]
+            quat = d.xquat[handle.body_id]
+            obs["obstacle_points"] = handle.local_points @ rot.T + pos
+            obs["obstacle_pose"] = np.concatenate([pos, quat[[1, 2, 3, 0]]])
+            obs["obstacle_size"] = handle.half_extents
+            obs["obstacle_mask"] = np.ones(1)
+        return {k: np.asarray(v, dtype=np.float32) for k, v in obs.items()}
+
+
+def _box(shape, low: float = -np.inf, high: float = np.inf) -> spaces.Box:
+    shape = (shape,) if isinstance(shape, int) else tuple(shape)
+    return spaces.Box(low, high, shape, dtype=np.float32)

@@ -1,0 +1,186 @@
+"""SafeLIBERO's obstacle set, added to a robosuite model as free bodies that start parked.
+
+All six obstacle types (LIBERO assets) and both pedestals are compiled into the model once, so that an
+episode can switch the active obstacle with a soft reset. Inactive obstacles are parked far below the
+scene with contacts and gravity switched off; the active one gets its contacts and gravity back and is
+set down on the support surface. Obstacle joints come after every LIBERO joint in ``qpos``, so LIBERO's
+official init states fill the leading part of the state unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from detaug_gym.envs.placement import PEDESTALS
+from detaug_gym.geometry.meshes import body_collision_mesh, is_collision_geom, sample_surface
+
+OBSTACLE_TYPES = ("moka_pot", "white_storage_box", "milk", "wine_bottle", "red_coffee_mug", "yellow_book")
+OBSTACLE_POINTS = 256  # surface samples per obstacle in the observation
+PARK_DEPTH = -5.0  # z of parked obstacles (below the floor, out of every sensor's way)
+# Rotation (about x, rad) that stands an asset upright; LIBERO's HOPE meshes (the milk carton) lie along y.
+UPRIGHT_X_ROTATION = {"milk": np.pi / 2}
+
+
+def check_obstacle_type(kind: str) -> str:
+    """Return ``kind`` if it is one of SafeLIBERO's obstacle types, else raise ``ValueError`` listing them."""
+    if kind not in OBSTACLE_TYPES:
+        raise ValueError(f"unknown obstacle type {kind!r}; valid types: {', '.join(OBSTACLE_TYPES)}")
+    return kind
+
+
+def obstacle_body_name(kind: str) -> str:
+    return f"obstacle_{kind}"
+
+
+def add_obstacles_to_model(task_model, object_factory) -> None:
+    """Append the six obstacles (free joints) and two static pedestals to a robosuite ``ManipulationTask``.
+
+    Args:
+        task_model: robosuite ``ManipulationTask`` (``env.model`` inside ``_load_model``).
+        object_factory: ``category -> class`` (LIBERO's ``get_object_fn``).
+    """
+    from robosuite.utils.mjcf_utils import new_body, new_geom
+
+    objects = [object_factory(kind)(name=obstacle_body_name(kind)) for kind in OBSTACLE_TYPES]
+    task_model.merge_objects(objects)
+    for i, (name, half) in enumerate(PEDESTALS.items()):
+        body = new_body(name=f"pedestal_{name}", pos=(0.0, 2.0 * i, PARK_DEPTH))
+        body.append(
+            new_geom(name=f"pedestal_{name}_box", type="box", size=tuple(half), rgba=(0.93, 0.93, 0.9, 1.0),
+                     group=0, friction=(1.0, 0.005, 0.0001), solref=(0.01, 1), density=500)
+        )
+        task_model.worldbody.append(body)
+
+
+@dataclass
+class ObstacleHandle:
+    """Indices and geometry of one obstacle body in a compiled model.
+
+    Attributes:
+        kind: obstacle type.
+        body_id: the obstacle's root body.
+        qpos_adr, dof_adr: start of its free joint in ``qpos`` (7) and ``qvel`` (6).
+        geom_ids: its collision geoms; ``contype``/``conaffinity`` saved to restore on activation.
+        local_points: ``(OBSTACLE_POINTS, 3)`` surface samples in the body frame.
+        upright_quat: body orientation (wxyz) that stands the asset upright before any yaw.
+        local_lo, local_hi: axis-aligned bounds of the collision mesh in the upright frame, ``(3,)`` each.
+    """
+
+    kind: str
+    body_id: int
+    qpos_adr: int
+    dof_adr: int
+    geom_ids: np.ndarray
+    contype: np.ndarray
+    conaffinity: np.ndarray
+    local_points: np.ndarray
+    upright_quat: np.ndarray
+    local_lo: np.ndarray
+    local_hi: np.ndarray
+
+    @property
+    def half_extents(self) -> np.ndarray:
+        return 0.5 * (self.local_hi - self.local_lo)
+
+    def pose_on_support(self, xy: np.ndarray, yaw: float, support_z: float) -> tuple[np.ndarray, np.ndarray]:
+        """Body position and quaternion (wxyz) that stand the obstacle upright with its bounds centred
+        on ``xy`` and its lowest point on ``support_z``, rotated by ``yaw`` about z."""
+        q_yaw = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+        quat = np.zeros(4)
+        mujoco.mju_mulQuat(quat, q_yaw, self.upright_quat)
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, q_yaw)
+        anchor = np.array([0.5 * (self.local_lo[0] + self.local_hi[0]),
+                           0.5 * (self.local_lo[1] + self.local_hi[1]), self.local_lo[2]])
+        pos = np.array([xy[0], xy[1], support_z]) - rot.reshape(3, 3) @ anchor
+        return pos, quat
+
+
+@dataclass
+class PedestalHandle:
+    name: str
+    body_id: int
+    geom_id: int
+    half: np.ndarray
+
+
+def obstacle_handles(model: mujoco.MjModel) -> dict[str, ObstacleHandle]:
+    """Find the obstacles added by :func:`add_obstacles_to_model` in a compiled model."""
+    handles = {}
+    for kind in OBSTACLE_TYPES:
+        body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"{obstacle_body_name(kind)}_main")
+        if body_id < 0:
+            raise KeyError(f"obstacle body for {kind!r} missing from the model")
+        joint = int(model.body_jntadr[body_id])
+        geoms = np.array(
+            [g for g in range(model.ngeom) if model.geom_bodyid[g] == body_id and is_collision_geom(model, g)]
+        )
+        mesh = body_collision_mesh(model, body_id)
+        angle = UPRIGHT_X_ROTATION.get(kind, 0.0)
+        upright = np.array([np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0])
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, upright)
+        upright_vertices = mesh.vertices @ rot.reshape(3, 3).T
+        handles[kind] = ObstacleHandle(
+            kind=kind,
+            body_id=body_id,
+            qpos_adr=int(model.jnt_qposadr[joint]),
+            dof_adr=int(model.jnt_dofadr[joint]),
+            geom_ids=geoms,
+            contype=model.geom_contype[geoms].copy(),
+            conaffinity=model.geom_conaffinity[geoms].copy(),
+            local_points=sample_surface(mesh, OBSTACLE_POINTS, seed=0),
+            upright_quat=upright,
+            local_lo=upright_vertices.min(axis=0),
+            local_hi=upright_vertices.max(axis=0),
+        )
+    return handles
+
+
+def pedestal_handles(model: mujoco.MjModel) -> dict[str, PedestalHandle]:
+    out = {}
+    for name, half in PEDESTALS.items():
+        body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"pedestal_{name}")
+        geom_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"pedestal_{name}_box")
+        out[name] = PedestalHandle(name, body_id, geom_id, half.copy())
+    return out
+
+
+def park_all(model: mujoco.MjModel, data: mujoco.MjData, obstacles: dict[str, ObstacleHandle],
+             pedestals: dict[str, PedestalHandle]) -> None:
+    """Move every obstacle and pedestal out of the scene, with contacts and gravity off."""
+    for i, h in enumerate(obstacles.values()):
+        model.geom_contype[h.geom_ids] = 0
+        model.geom_conaffinity[h.geom_ids] = 0
+        model.body_gravcomp[h.body_id] = 1.0
+        data.qpos[h.qpos_adr : h.qpos_adr + 7] = (3.0 + i, 3.0, PARK_DEPTH, 1.0, 0.0, 0.0, 0.0)
+        data.qvel[h.dof_adr : h.dof_adr + 6] = 0.0
+    for i, p in enumerate(pedestals.values()):
+        model.body_pos[p.body_id] = (-3.0 - i, 3.0, PARK_DEPTH)
+        model.geom_contype[p.geom_id] = 0
+        model.geom_conaffinity[p.geom_id] = 0
+
+
+def activate(model: mujoco.MjModel, data: mujoco.MjData, handle: ObstacleHandle, xy: np.ndarray,
+             yaw: float, support_z: float) -> None:
+    """Give ``handle`` its contacts and gravity back and stand it on ``support_z`` at ``xy``, yawed."""
+    model.geom_contype[handle.geom_ids] = handle.contype
+    model.geom_conaffinity[handle.geom_ids] = handle.conaffinity
+    model.body_gravcomp[handle.body_id] = 0.0
+    pos, quat = handle.pose_on_support(xy, yaw, support_z + 5e-4)
+    data.qpos[handle.qpos_adr : handle.qpos_adr + 3] = pos
+    data.qpos[handle.qpos_adr + 3 : handle.qpos_adr + 7] = quat
+    data.qvel[handle.dof_adr : handle.dof_adr + 6] = 0.0
+
+
+def raise_pedestal(model: mujoco.MjModel, pedestal: PedestalHandle, xy: np.ndarray, yaw: float,
+                   support_z: float) -> float:
+    """Stand ``pedestal`` on the support at ``xy``; returns the height of its top face."""
+    model.body_pos[pedestal.body_id] = (xy[0], xy[1], support_z + pedestal.half[2])
+    model.body_quat[pedestal.body_id] = (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
+    model.geom_contype[pedestal.geom_id] = 1
+    model.geom_conaffinity[pedestal.geom_id] = 1
+    return support_z + 2 * pedestal.half[2]

@@ -1,0 +1,190 @@
+"""Where the obstacle goes: SafeLIBERO's two levels as a pure function of the scene and a generator.
+
+Level 1 puts the obstacle close to the object the robot must pick. Level 2 puts it on the straight motion
+path: the carry segment from the pick object to the place target when there is room for it there, else
+the approach segment from the end effector's start to the pick object (SafeLIBERO's Spatial Level 2 does
+this: the bowl sits right next to the plate, and the obstacle stands mid-table on the way to the bowl).
+Where the obstacle is shorter than the height at which the path is travelled, it stands on a pedestal
+(SafeLIBERO raises obstacles on a storage-box base).
+
+Everything here is plain numpy on axis-aligned footprints, so the invariants (distance bands, path
+intersection, no overlap) are tested over thousands of seeds without physics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# Pedestal half-extents (m): SafeLIBERO's storage-box base (~0.13 x 0.12 x 0.14) and a half-height one.
+PEDESTALS: dict[str, np.ndarray] = {
+    "half": np.array([0.065, 0.06, 0.035]),
+    "full": np.array([0.065, 0.06, 0.07]),
+}
+# Eef height above the support surface at which the scripted expert carries objects; a Level 2
+# obstacle must reach this high (minus the held object's height) to block the straight path.
+TRANSIT_HEIGHT = 0.16
+L1_GAP = (0.03, 0.10)  # footprint gap between obstacle and pick object at Level 1 (m)
+L2_PATH_FRACTION = (0.3, 0.7)  # where along its path segment the Level 2 obstacle stands
+L2_LATERAL = 0.02  # lateral jitter off the segment at Level 2 (m), SafeLIBERO's 0-2 cm
+MIN_GAP_TO_SCENE = 0.01  # clearance to every other object (m)
+MIN_GAP_TO_INTERACTION = 0.03  # clearance to pick object and place target so grasp/release stay feasible
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """Axis-aligned box of a scene object in world xy, with its top height."""
+
+    name: str
+    lo: np.ndarray  # (2,)
+    hi: np.ndarray  # (2,)
+    top: float = 0.0
+
+    @property
+    def center(self) -> np.ndarray:
+        return 0.5 * (self.lo + self.hi)
+
+
+@dataclass(frozen=True)
+class PlacementProblem:
+    """The scene as the placement sees it.
+
+    Attributes:
+        pick: footprint of the object to pick.
+        place: footprint of the place target.
+        others: footprints of every other object and fixture on the support.
+        workspace_lo, workspace_hi: xy box the obstacle centre must stay in, shape ``(2,)``.
+        start: xy of the end effector at the start of the episode, shape ``(2,)``.
+    """
+
+    pick: Footprint
+    place: Footprint
+    others: tuple[Footprint, ...]
+    workspace_lo: np.ndarray
+    workspace_hi: np.ndarray
+    start: np.ndarray
+
+    def path_segments(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """The Level 2 candidate segments in order of preference: carry, then approach."""
+        return [("carry", self.pick.center, self.place.center), ("approach", self.start, self.pick.center)]
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Result: obstacle centre ``xy``, ``yaw`` about z, and the pedestal under it (``None``, "half", "full")."""
+
+    xy: np.ndarray
+    yaw: float
+    pedestal: str | None
+    level: str
+    relaxed: int = 0  # how many times the constraints had to be relaxed to find a spot
+    segment: str = ""  # Level 2: "carry" or "approach"
+    footprint: Footprint = field(default=None)  # type: ignore[assignment]
+
+
+def footprint_gap(a: Footprint, b: Footprint) -> float:
+    """Distance between two axis-aligned xy boxes (0 when they touch or overlap; negative depth inside)."""
+    sep = np.maximum(a.lo - b.hi, b.lo - a.hi)
+    if np.all(sep <= 0):
+        return float(sep.max())
+    return float(np.linalg.norm(np.maximum(sep, 0.0)))
+
+
+def rotated_half_extents(half: np.ndarray, yaw: float) -> np.ndarray:
+    """xy half-extents of the axis-aligned box around a box of ``half`` (x, y) rotated by ``yaw``."""
+    c, s = abs(np.cos(yaw)), abs(np.sin(yaw))
+    return np.array([c * half[0] + s * half[1], s * half[0] + c * half[1]])
+
+
+def choose_pedestal(obstacle_height: float, held_height: float = 0.05) -> str | None:
+    """Smallest pedestal that lifts the obstacle's top into the carry path, or ``None`` if tall enough."""
+    need = TRANSIT_HEIGHT - held_height
+    if obstacle_height >= need:
+        return None
+    for name in ("half", "full"):
+        if 2 * PEDESTALS[name][2] + obstacle_height >= need:
+            return name
+    return "full"
+
+
+def place_obstacle(
+    problem: PlacementProblem,
+    half_extents: np.ndarray,
+    level: str,
+    rng: np.random.Generator,
+    attempts: int = 400,
+) -> Placement:
+    """Sample a collision-free obstacle position for ``level`` ("L1" or "L2").
+
+    Args:
+        problem: the scene footprints.
+        half_extents: obstacle half-extents in its own frame, shape ``(3,)`` (x, y, z).
+        level: ``"L1"`` (near the pick object) or ``"L2"`` (on the pick -> place path).
+        rng: the env's generator; the same state gives the same placement.
+        attempts: samples per relaxation round.
+
+    Returns:
+        The placement. If no sample satisfies the constraints, the scene gaps are relaxed in up to three
+        rounds (recorded in ``Placement.relaxed``); the level's defining band is never relaxed.
+    """
+    if level not in ("L1", "L2"):
+        raise ValueError(f"obstacle placement needs level 'L1' or 'L2', got {level!r}")
+    half_extents = np.asarray(half_extents, dtype=np.float64)
+    pedestal = choose_pedestal(2 * half_extents[2]) if level == "L2" else None
+    segments = problem.path_segments() if level == "L2" else [("", problem.pick.center, problem.pick.center)]
+    for relaxed, scale in enumerate((1.0, 0.6, 0.3, 0.0)):
+        for name, a, b in segments:
+            for _ in range(attempts):
+                yaw = float(rng.uniform(-np.pi, np.pi))
+                xy = _sample_centre(problem, half_extents, level, yaw, a, b, rng)
+                fp = _obstacle_footprint(xy, half_extents, yaw, pedestal)
+                if _valid(problem, fp, level, scale):
+                    return Placement(xy, yaw, pedestal, level, relaxed, name, fp)
+    raise RuntimeError(
+        f"could not place a {level} obstacle of half-extents {half_extents} in this scene "
+        f"(pick {problem.pick.name}, place {problem.place.name})"
+    )
+
+
+def _obstacle_footprint(xy: np.ndarray, half: np.ndarray, yaw: float, pedestal: str | None) -> Footprint:
+    ext = rotated_half_extents(half[:2], yaw)
+    if pedestal is not None:
+        ext = np.maximum(ext, rotated_half_extents(PEDESTALS[pedestal][:2], yaw))
+    return Footprint("obstacle", xy - ext, xy + ext)
+
+
+def _sample_centre(problem: PlacementProblem, half: np.ndarray, level: str, yaw: float, a: np.ndarray,
+                   b: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    pick_c = problem.pick.center
+    if level == "L1":
+        # Aim at a footprint gap in the L1 band along a random direction from the pick object.
+        direction = rng.uniform(-np.pi, np.pi)
+        unit = np.array([np.cos(direction), np.sin(direction)])
+        reach = np.abs(unit) @ (0.5 * (problem.pick.hi - problem.pick.lo))
+        reach += np.abs(unit) @ rotated_half_extents(half[:2], yaw)
+        return pick_c + unit * (reach + rng.uniform(*L1_GAP))
+    seg = b - a
+    u = rng.uniform(*L2_PATH_FRACTION)
+    normal = np.array([-seg[1], seg[0]]) / max(np.linalg.norm(seg), 1e-9)
+    return a + u * seg + normal * rng.uniform(-L2_LATERAL, L2_LATERAL)
+
+
+def _valid(problem: PlacementProblem, fp: Footprint, level: str, scale: float) -> bool:
+    centre = fp.center
+    if np.any(centre < problem.workspace_lo) or np.any(centre > problem.workspace_hi):
+        return False
+    gap_pick = footprint_gap(fp, problem.pick)
+    gap_place = footprint_gap(fp, problem.place)
+    if level == "L1" and not (L1_GAP[0] - 1e-9 <= gap_pick <= L1_GAP[1] + 1e-9):
+        return False
+    if min(gap_pick, gap_place) < MIN_GAP_TO_INTERACTION * max(scale, 0.5):
+        return False
+    return all(footprint_gap(fp, other) >= MIN_GAP_TO_SCENE * scale for other in problem.others)
+
+
+def distance_to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Euclidean distance from ``point`` to the segment ``a``-``b`` in the plane."""
+    ab = b - a
+    t = float(np.clip((point - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0))
+    return float(np.linalg.norm(point - (a + t * ab)))

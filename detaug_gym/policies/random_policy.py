@@ -1,0 +1,32 @@
+"""Uniformly random actions: the floor every method must beat, and a cheap policy for harness tests."""
+
+from __future__ import annotations
+
+import numpy as np
+
+ACTION_DIM = 7
+
+
+class RandomPolicy:
+    """Samples each action uniformly from ``[-scale, scale]^6`` for the arm and ``{-1, +1}`` for the gripper.
+
+    Args:
+        scale: bound on the arm part of the action (``(0, 1]``).
+        seed: default seed used when ``reset`` is called without one.
+    """
+
+    def __init__(self, scale: float = 1.0, seed: int | None = None, **_: object) -> None:
+        if not 0.0 < scale <= 1.0:
+            raise ValueError(f"scale must lie in (0, 1], got {scale}")
+        self.scale = float(scale)
+        self._default_seed = seed
+        self._rng = np.random.default_rng(seed)
+
+    def reset(self, seed: int | None = None) -> None:
+        self._rng = np.random.default_rng(self._default_seed if seed is None else seed)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        action = np.empty(ACTION_DIM, dtype=np.float32)
+        action[:6] = self._rng.uniform(-self.scale, self.scale, 6)
+        action[6] = 1.0 if self._rng.random() < 0.5 else -1.0
+        return action
