@@ -19,7 +19,6 @@ from detaug_gym.envs.obstacles import (
     OBSTACLE_POINTS,
     OBSTACLE_TYPES,
     activate,
-    check_obstacle_type,
     raise_pedestal,
 )
 from detaug_gym.envs.placement import Placement, PlacementProblem, place_obstacle
@@ -57,6 +56,7 @@ class ObstacleManipulationEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+    obstacle_types: tuple[str, ...] = OBSTACLE_TYPES
 
     def __init__(self, *, num_tasks: int, object_slots: int, max_steps: int, level: str,
                  obstacle: str | list[str] | None = None, controller: str = "stock",
@@ -119,7 +119,7 @@ class ObstacleManipulationEnv(gym.Env):
         obstacle, placement = None, None
         if scene.obstacles and self.level in ("L1", "L2"):
             obstacle = options.get("obstacle") or self.obstacle_choices[int(rng.integers(len(self.obstacle_choices)))]
-            check_obstacle_type(obstacle)
+            self._check_obstacle(obstacle)
             mujoco.mj_forward(scene.model, scene.data)
             placement = self._place(scene, obstacle, rng)
         self.episode = Episode(task, init_state, obstacle, placement)
@@ -188,11 +188,16 @@ class ObstacleManipulationEnv(gym.Env):
 
     def _obstacle_choices(self, obstacle) -> tuple[str, ...]:
         if obstacle is None:
-            return OBSTACLE_TYPES
+            return self.obstacle_types
         chosen = (obstacle,) if isinstance(obstacle, str) else tuple(obstacle)
         if not chosen:
-            raise ValueError(f"obstacle must name at least one type; valid types: {', '.join(OBSTACLE_TYPES)}")
-        return tuple(check_obstacle_type(o) for o in chosen)
+            raise ValueError(f"obstacle must name at least one type; valid types: {', '.join(self.obstacle_types)}")
+        return tuple(self._check_obstacle(o) for o in chosen)
+
+    def _check_obstacle(self, kind: str) -> str:
+        if kind not in self.obstacle_types:
+            raise ValueError(f"unknown obstacle type {kind!r}; valid types: {', '.join(self.obstacle_types)}")
+        return kind
 
     def _place(self, scene: Scene, obstacle: str, rng: np.random.Generator) -> Placement:
         handle = scene.obstacles[obstacle]

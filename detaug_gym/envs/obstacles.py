@@ -24,13 +24,6 @@ PARK_DEPTH = -5.0  # z of parked obstacles (below the floor, out of every sensor
 UPRIGHT_X_ROTATION = {"milk": np.pi / 2}
 
 
-def check_obstacle_type(kind: str) -> str:
-    """Return ``kind`` if it is one of SafeLIBERO's obstacle types, else raise ``ValueError`` listing them."""
-    if kind not in OBSTACLE_TYPES:
-        raise ValueError(f"unknown obstacle type {kind!r}; valid types: {', '.join(OBSTACLE_TYPES)}")
-    return kind
-
-
 def obstacle_body_name(kind: str) -> str:
     return f"obstacle_{kind}"
 
@@ -107,10 +100,10 @@ class PedestalHandle:
     half: np.ndarray
 
 
-def obstacle_handles(model: mujoco.MjModel) -> dict[str, ObstacleHandle]:
-    """Find the obstacles added by :func:`add_obstacles_to_model` in a compiled model."""
+def obstacle_handles(model: mujoco.MjModel, kinds: tuple[str, ...] = OBSTACLE_TYPES) -> dict[str, ObstacleHandle]:
+    """Find the obstacle bodies ``obstacle_<kind>_main`` (free joint) of a compiled model."""
     handles = {}
-    for kind in OBSTACLE_TYPES:
+    for kind in kinds:
         body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"{obstacle_body_name(kind)}_main")
         if body_id < 0:
             raise KeyError(f"obstacle body for {kind!r} missing from the model")
@@ -141,9 +134,12 @@ def obstacle_handles(model: mujoco.MjModel) -> dict[str, ObstacleHandle]:
 
 
 def pedestal_handles(model: mujoco.MjModel) -> dict[str, PedestalHandle]:
+    """The pedestals of a compiled model (none where :func:`add_obstacles_to_model` was not applied)."""
     out = {}
     for name, half in PEDESTALS.items():
         body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"pedestal_{name}")
+        if body_id < 0:
+            continue
         geom_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"pedestal_{name}_box")
         out[name] = PedestalHandle(name, body_id, geom_id, half.copy())
     return out

@@ -83,6 +83,11 @@ class Placement:
     footprint: Footprint = field(default=None)  # type: ignore[assignment]
 
 
+def hand_footprint(eef_xy: np.ndarray, half: float = 0.06) -> Footprint:
+    """Keep-out box around the end effector's start so that no obstacle spawns under the hand."""
+    return Footprint("robot_hand", eef_xy - half, eef_xy + half)
+
+
 def footprint_gap(a: Footprint, b: Footprint) -> float:
     """Distance between two axis-aligned xy boxes (0 when they touch or overlap; negative depth inside)."""
     sep = np.maximum(a.lo - b.hi, b.lo - a.hi)

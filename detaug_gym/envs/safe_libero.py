@@ -9,14 +9,12 @@ exactly LIBERO's layout.
 
 from __future__ import annotations
 
-import contextlib
-import io
-
 import numpy as np
 
 from detaug_gym.envs.base import ObstacleManipulationEnv
-from detaug_gym.envs.placement import PlacementProblem
-from detaug_gym.envs.scene import PickPlace, Scene
+from detaug_gym.envs.obstacles import OBSTACLE_TYPES
+from detaug_gym.envs.placement import PlacementProblem, hand_footprint
+from detaug_gym.envs.scene import PickPlace, Scene, quiet
 from detaug_gym.envs.suites import TaskSpec, check_level, get_suite, resolve_task
 
 NUM_INIT_STATES = 50
@@ -76,9 +74,10 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         pick = scene.footprint(step.obj)
         place = self._target_footprint(scene, step.target)
         skip = {step.obj, step.target, place.name}
-        others = tuple(scene.footprint(name) for name in _scene_object_names(scene) if name not in skip)
-        base = scene.robot.base_pos[:2]
         start = scene.eef_pose()[0][:2]
+        others = tuple(scene.footprint(name) for name in _scene_object_names(scene) if name not in skip)
+        others += (hand_footprint(start),)
+        base = scene.robot.base_pos[:2]
         centre_lo = np.minimum.reduce([pick.center, place.center, start]) - 0.2
         centre_hi = np.maximum.reduce([pick.center, place.center, start]) + 0.2
         reach_lo, reach_hi = base + np.array([0.3, -0.45]), base + np.array([0.95, 0.45])
@@ -108,18 +107,13 @@ def _scene_object_names(scene: Scene) -> list[str]:
     return [n for n in list(env.objects_dict) + list(env.fixtures_dict) if not n.startswith("obstacle_")]
 
 
-def _quiet():
-    """LIBERO and robosuite print banners on import and benchmark lookup; keep the user's terminal clean."""
-    return contextlib.redirect_stdout(io.StringIO())
-
-
 def build_libero_scene(task: TaskSpec, with_obstacles: bool) -> tuple[Scene, np.ndarray]:
     """Compile the LIBERO scene of ``task`` (with the obstacle set when ``with_obstacles``).
 
     Returns:
         The scene and LIBERO's official init states, shape ``(50, 1 + nq_libero + nv_libero)``.
     """
-    with _quiet():
+    with quiet():
         import robosuite
         from libero.libero import benchmark, get_libero_path
         from libero.libero.envs import TASK_MAPPING, bddl_utils
@@ -137,7 +131,7 @@ def build_libero_scene(task: TaskSpec, with_obstacles: bool) -> tuple[Scene, np.
     state = np.random.get_state()
     np.random.seed(FIXTURE_SEED)  # robosuite draws fixture poses from the global generator
     try:
-        with _quiet():
+        with quiet():
             sim_env = env_cls(
                 bddl, robots=["Panda"], controller_configs=config, initialization_noise=None,
                 use_camera_obs=False, has_renderer=False, has_offscreen_renderer=False,
@@ -154,8 +148,9 @@ def build_libero_scene(task: TaskSpec, with_obstacles: bool) -> tuple[Scene, np.
             if name not in tracked:
                 tracked.append(name)
     m = sim_env.sim.model._model
-    extra_q, extra_v = (7 * 6, 6 * 6) if with_obstacles else (0, 0)
-    scene = Scene(sim_env, pick_places, tracked, with_obstacles, (m.nq - extra_q, m.nv - extra_v),
+    extra_q, extra_v = (7 * len(OBSTACLE_TYPES), 6 * len(OBSTACLE_TYPES)) if with_obstacles else (0, 0)
+    kinds = OBSTACLE_TYPES if with_obstacles else ()
+    scene = Scene(sim_env, pick_places, tracked, kinds, (m.nq - extra_q, m.nv - extra_v),
                   success_fn=sim_env._check_success)
     expected = 1 + scene.nq0 + scene.nv0
     if init_states.shape[1] != expected:

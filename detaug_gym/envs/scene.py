@@ -8,6 +8,8 @@ layout, footprints for obstacle placement, contacts and clearances. The gymnasiu
 
 from __future__ import annotations
 
+import contextlib
+import io
 from dataclasses import dataclass
 
 import mujoco
@@ -29,6 +31,11 @@ ROBOT_PREFIXES = ("robot0_", "gripper0_")
 SETTLE_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)
 
 
+def quiet():
+    """LIBERO and robosuite print banners on import and benchmark lookup; keep the user's terminal clean."""
+    return contextlib.redirect_stdout(io.StringIO())
+
+
 @dataclass(frozen=True)
 class PickPlace:
     """One sub-goal of a task: move ``obj`` (a body) onto/into ``target`` (a body or a site)."""
@@ -45,12 +52,12 @@ class Scene:
         sim_env: a robosuite ``MujocoEnv`` already reset once.
         pick_places: the task's sub-goals in order.
         tracked: names (bodies or sites) whose poses fill ``object_poses``.
-        has_obstacles: whether :func:`~detaug_gym.envs.obstacles.add_obstacles_to_model` was applied.
+        obstacle_kinds: the obstacle bodies compiled into the model (``obstacle_<kind>_main``), may be empty.
         state_size: ``(nq, nv)`` of the state layout without obstacles (LIBERO's init-state layout).
         success_fn: ``() -> bool`` evaluating the task's goal on the current sim state.
     """
 
-    def __init__(self, sim_env, pick_places: list[PickPlace], tracked: list[str], has_obstacles: bool,
+    def __init__(self, sim_env, pick_places: list[PickPlace], tracked: list[str], obstacle_kinds: tuple[str, ...],
                  state_size: tuple[int, int], success_fn) -> None:
         self.sim_env = sim_env
         self.model: mujoco.MjModel = sim_env.sim.model._model
@@ -69,13 +76,13 @@ class Scene:
         robot_body = np.array([name.startswith(ROBOT_PREFIXES) for name in body_names])
         self.robot_geom = robot_body[m.geom_bodyid] & ((m.geom_contype | m.geom_conaffinity) > 0)
         self.robot_geom_ids = np.flatnonzero(self.robot_geom)
-        self.obstacles: dict[str, ObstacleHandle] = obstacle_handles(m) if has_obstacles else {}
-        self.pedestals: dict[str, PedestalHandle] = pedestal_handles(m) if has_obstacles else {}
+        self.obstacles: dict[str, ObstacleHandle] = obstacle_handles(m, obstacle_kinds) if obstacle_kinds else {}
+        self.pedestals: dict[str, PedestalHandle] = pedestal_handles(m)
         self._tracked_refs = [self._pose_ref(name) for name in tracked]
         # Snapshot of the compiled model's static poses; fixtures are re-drawn per episode on top of it.
         self.nominal_body_pos = m.body_pos.copy()
         self.nominal_body_quat = m.body_quat.copy()
-        if has_obstacles:
+        if self.obstacles:
             park_all(m, self.data, self.obstacles, self.pedestals)
 
     # ------------------------------------------------------------------ indices
@@ -208,16 +215,20 @@ class Scene:
         lo, hi = bounds
         return Footprint(name, lo[:2], hi[:2], float(hi[2]))
 
-    def support_height(self, xy: np.ndarray, exclude_body: int = -1) -> float:
-        """Height of the first collision surface below ``xy`` (table, floor, ...), by a downward ray."""
+    def support_height(self, xy: np.ndarray) -> float:
+        """Height of the first collision surface below ``xy`` that is not the robot, by downward rays."""
         geomid = np.zeros(1, dtype=np.int32)
         groups = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # group 0 = collision geoms in robosuite
-        start = np.array([xy[0], xy[1], 3.0])
-        dist = mujoco.mj_ray(self.model, self.data, start, np.array([0.0, 0.0, -1.0]), groups, 1,
-                             exclude_body, geomid)
-        if dist < 0:
-            raise RuntimeError(f"no support surface below {xy}")
-        return float(start[2] - dist)
+        down = np.array([0.0, 0.0, -1.0])
+        z = 3.0
+        for _ in range(20):  # step through robot geoms that hang above the spot
+            dist = mujoco.mj_ray(self.model, self.data, np.array([xy[0], xy[1], z]), down, groups, 1, -1, geomid)
+            if dist < 0:
+                break
+            if not self.robot_geom[geomid[0]]:
+                return float(z - dist)
+            z -= dist + 1e-4
+        raise RuntimeError(f"no support surface below {xy}")
 
     # ------------------------------------------------------------------ contacts
     def contact_pairs(self) -> tuple[np.ndarray, np.ndarray]:
