@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 
 from detaug_gym.envs.base import ObstacleManipulationEnv
-from detaug_gym.envs.placement import Footprint, PlacementProblem, hand_footprint
+from detaug_gym.envs.placement import Footprint, PlacementProblem
 from detaug_gym.envs.scene import PickPlace, Scene, quiet
 
 NUM_INIT_STATES = 50
@@ -86,8 +86,8 @@ class NewtonPickPlaceEnv(ObstacleManipulationEnv):
         target = scene.pose_of("target")[:2]
         place = Footprint("target", target - 0.03, target + 0.03)
         start = scene.eef_pose()[0][:2]
-        return PlacementProblem(pick, place, (hand_footprint(start),), np.array([-0.3, -0.3]),
-                                np.array([0.3, 0.3]), start)
+        start_height = scene.eef_pose()[0][2] - TABLE_TOP
+        return PlacementProblem(pick, place, (), np.array([-0.3, -0.3]), np.array([0.3, 0.3]), start, start_height)
 
 
 def build_newton_scene(with_cylinder: bool) -> Scene:

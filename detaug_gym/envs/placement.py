@@ -13,14 +13,16 @@ intersection, no overlap) are tested over thousands of seeds without physics.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-# Pedestal half-extents (m): SafeLIBERO's storage-box base (~0.13 x 0.12 x 0.14) and a half-height one.
+# Pedestal half-extents (m): SafeLIBERO's base is 0.14 m tall (a storage box) and comes in a half-height
+# version too. Ours is a narrower column (9 x 9 cm instead of ~13 x 12 cm) so that a raised obstacle still
+# fits between the objects of LIBERO's cluttered scenes; obstacles overhang it slightly but stand stably.
 PEDESTALS: dict[str, np.ndarray] = {
-    "half": np.array([0.065, 0.06, 0.035]),
-    "full": np.array([0.065, 0.06, 0.07]),
+    "half": np.array([0.045, 0.045, 0.035]),
+    "full": np.array([0.045, 0.045, 0.07]),
 }
 # Eef height above the support surface at which the scripted expert carries objects; a Level 2
 # obstacle must reach this high (minus the held object's height) to block the straight path.
@@ -28,6 +30,7 @@ TRANSIT_HEIGHT = 0.16
 L1_GAP = (0.03, 0.10)  # footprint gap between obstacle and pick object at Level 1 (m)
 L2_PATH_FRACTION = (0.3, 0.7)  # where along its path segment the Level 2 obstacle stands
 L2_LATERAL = 0.02  # lateral jitter off the segment at Level 2 (m), SafeLIBERO's 0-2 cm
+HAND_CLEARANCE = 0.08  # vertical clearance under the start pose of the hand (m)
 MIN_GAP_TO_SCENE = 0.01  # clearance to every other object (m)
 MIN_GAP_TO_INTERACTION = 0.03  # clearance to pick object and place target so grasp/release stay feasible
 
@@ -56,6 +59,8 @@ class PlacementProblem:
         others: footprints of every other object and fixture on the support.
         workspace_lo, workspace_hi: xy box the obstacle centre must stay in, shape ``(2,)``.
         start: xy of the end effector at the start of the episode, shape ``(2,)``.
+        start_height: height of the end effector above the support at the start; an obstacle whose top
+            comes within ``HAND_CLEARANCE`` of it must also keep out of the box around ``start``.
     """
 
     pick: Footprint
@@ -64,6 +69,7 @@ class PlacementProblem:
     workspace_lo: np.ndarray
     workspace_hi: np.ndarray
     start: np.ndarray
+    start_height: float = 0.0
 
     def path_segments(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """The Level 2 candidate segments in order of preference: carry, then approach."""
@@ -81,11 +87,6 @@ class Placement:
     relaxed: int = 0  # how many times the constraints had to be relaxed to find a spot
     segment: str = ""  # Level 2: "carry" or "approach"
     footprint: Footprint = field(default=None)  # type: ignore[assignment]
-
-
-def hand_footprint(eef_xy: np.ndarray, half: float = 0.06) -> Footprint:
-    """Keep-out box around the end effector's start so that no obstacle spawns under the hand."""
-    return Footprint("robot_hand", eef_xy - half, eef_xy + half)
 
 
 def footprint_gap(a: Footprint, b: Footprint) -> float:
@@ -130,26 +131,38 @@ def place_obstacle(
         attempts: samples per relaxation round.
 
     Returns:
-        The placement. If no sample satisfies the constraints, the scene gaps are relaxed in up to three
-        rounds (recorded in ``Placement.relaxed``); the level's defining band is never relaxed.
+        The placement. If no sample satisfies the constraints, they are relaxed in up to four rounds
+        (recorded in ``Placement.relaxed``): wider stretch of the path, larger lateral offset (still
+        covering the path), smaller clearance gaps. The Level 1 distance band is never relaxed.
     """
     if level not in ("L1", "L2"):
         raise ValueError(f"obstacle placement needs level 'L1' or 'L2', got {level!r}")
     half_extents = np.asarray(half_extents, dtype=np.float64)
     pedestal = choose_pedestal(2 * half_extents[2]) if level == "L2" else None
+    top = 2 * half_extents[2] + (0.0 if pedestal is None else 2 * PEDESTALS[pedestal][2])
+    if top + HAND_CLEARANCE > problem.start_height:  # the obstacle would reach the hand: keep out from under it
+        hand = Footprint("robot_hand", problem.start - 0.05, problem.start + 0.05)
+        problem = replace(problem, others=(*problem.others, hand))
     segments = problem.path_segments() if level == "L2" else [("", problem.pick.center, problem.pick.center)]
-    for relaxed, scale in enumerate((1.0, 0.6, 0.3, 0.0)):
+    # Relaxation rounds: (path fraction range, lateral offset bound, scale on the clearance gaps). The
+    # lateral bound never exceeds the obstacle's half-width, so a Level 2 footprint always covers the path.
+    half_width = float(np.min(half_extents[:2]))
+    rounds = [(L2_PATH_FRACTION, L2_LATERAL, 1.0), ((0.15, 0.85), L2_LATERAL, 1.0),
+              ((0.15, 0.85), half_width, 0.6), ((0.1, 0.9), half_width, 0.3), ((0.1, 0.9), half_width, 0.0)]
+    best, best_score = None, -np.inf
+    for relaxed, (fraction, lateral, scale) in enumerate(rounds):
         for name, a, b in segments:
             for _ in range(attempts):
                 yaw = float(rng.uniform(-np.pi, np.pi))
-                xy = _sample_centre(problem, half_extents, level, yaw, a, b, rng)
+                xy = _sample_centre(problem, half_extents, level, yaw, a, b, fraction, lateral, rng)
                 fp = _obstacle_footprint(xy, half_extents, yaw, pedestal)
                 if _valid(problem, fp, level, scale):
                     return Placement(xy, yaw, pedestal, level, relaxed, name, fp)
-    raise RuntimeError(
-        f"could not place a {level} obstacle of half-extents {half_extents} in this scene "
-        f"(pick {problem.pick.name}, place {problem.place.name})"
-    )
+                score = _least_gap(problem, fp)
+                if score > best_score:
+                    best, best_score = Placement(xy, yaw, pedestal, level, len(rounds), name, fp), score
+    # Scenes too cluttered for any valid spot (rare): the least-overlapping sample, marked fully relaxed.
+    return best
 
 
 def _obstacle_footprint(xy: np.ndarray, half: np.ndarray, yaw: float, pedestal: str | None) -> Footprint:
@@ -160,7 +173,8 @@ def _obstacle_footprint(xy: np.ndarray, half: np.ndarray, yaw: float, pedestal: 
 
 
 def _sample_centre(problem: PlacementProblem, half: np.ndarray, level: str, yaw: float, a: np.ndarray,
-                   b: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+                   b: np.ndarray, fraction: tuple[float, float], lateral: float,
+                   rng: np.random.Generator) -> np.ndarray:
     pick_c = problem.pick.center
     if level == "L1":
         # Aim at a footprint gap in the L1 band along a random direction from the pick object.
@@ -170,9 +184,9 @@ def _sample_centre(problem: PlacementProblem, half: np.ndarray, level: str, yaw:
         reach += np.abs(unit) @ rotated_half_extents(half[:2], yaw)
         return pick_c + unit * (reach + rng.uniform(*L1_GAP))
     seg = b - a
-    u = rng.uniform(*L2_PATH_FRACTION)
+    u = rng.uniform(*fraction)
     normal = np.array([-seg[1], seg[0]]) / max(np.linalg.norm(seg), 1e-9)
-    return a + u * seg + normal * rng.uniform(-L2_LATERAL, L2_LATERAL)
+    return a + u * seg + normal * rng.uniform(-lateral, lateral)
 
 
 def _valid(problem: PlacementProblem, fp: Footprint, level: str, scale: float) -> bool:
@@ -183,9 +197,18 @@ def _valid(problem: PlacementProblem, fp: Footprint, level: str, scale: float) -
     gap_place = footprint_gap(fp, problem.place)
     if level == "L1" and not (L1_GAP[0] - 1e-9 <= gap_pick <= L1_GAP[1] + 1e-9):
         return False
-    if min(gap_pick, gap_place) < MIN_GAP_TO_INTERACTION * max(scale, 0.5):
+    if min(gap_pick, gap_place) < MIN_GAP_TO_INTERACTION * max(scale, 0.3):
         return False
     return all(footprint_gap(fp, other) >= MIN_GAP_TO_SCENE * scale for other in problem.others)
+
+
+def _least_gap(problem: PlacementProblem, fp: Footprint) -> float:
+    """The smallest clearance of ``fp`` to anything it must avoid (negative when overlapping)."""
+    gaps = [footprint_gap(fp, other) for other in problem.others]
+    gaps += [footprint_gap(fp, problem.pick), footprint_gap(fp, problem.place)]
+    if np.any(fp.center < problem.workspace_lo) or np.any(fp.center > problem.workspace_hi):
+        gaps.append(-1.0)
+    return min(gaps)
 
 
 def distance_to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:

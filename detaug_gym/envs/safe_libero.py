@@ -13,7 +13,7 @@ import numpy as np
 
 from detaug_gym.envs.base import ObstacleManipulationEnv
 from detaug_gym.envs.obstacles import OBSTACLE_TYPES
-from detaug_gym.envs.placement import PlacementProblem, hand_footprint
+from detaug_gym.envs.placement import PlacementProblem
 from detaug_gym.envs.scene import PickPlace, Scene, quiet
 from detaug_gym.envs.suites import TaskSpec, check_level, get_suite, resolve_task
 
@@ -76,13 +76,13 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         skip = {step.obj, step.target, place.name}
         start = scene.eef_pose()[0][:2]
         others = tuple(scene.footprint(name) for name in _scene_object_names(scene) if name not in skip)
-        others += (hand_footprint(start),)
         base = scene.robot.base_pos[:2]
         centre_lo = np.minimum.reduce([pick.center, place.center, start]) - 0.2
         centre_hi = np.maximum.reduce([pick.center, place.center, start]) + 0.2
         reach_lo, reach_hi = base + np.array([0.3, -0.45]), base + np.array([0.95, 0.45])
+        start_height = scene.eef_pose()[0][2] - scene.support_height(start)
         return PlacementProblem(pick, place, others, np.maximum(centre_lo, reach_lo),
-                                np.minimum(centre_hi, reach_hi), start)
+                                np.minimum(centre_hi, reach_hi), start, start_height)
 
     @staticmethod
     def _target_footprint(scene: Scene, target: str):
