@@ -145,6 +145,8 @@ class Scene:
         gripper.current_action = np.zeros(gripper.dof)
         m.body_pos[:] = self.nominal_body_pos
         m.body_quat[:] = self.nominal_body_quat
+        if self.obstacles:  # mj_resetData put the obstacles back at their compiled pose, inside the scene
+            park_all(m, d, self.obstacles, self.pedestals)
 
     # ------------------------------------------------------------------ reading
     def eef_pose(self) -> tuple[np.ndarray, np.ndarray]:
@@ -217,17 +219,18 @@ class Scene:
 
     def support_height(self, xy: np.ndarray) -> float:
         """Height of the first collision surface below ``xy`` that is not the robot, by downward rays."""
+        m = self.model
         geomid = np.zeros(1, dtype=np.int32)
-        groups = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)  # group 0 = collision geoms in robosuite
         down = np.array([0.0, 0.0, -1.0])
-        z = 3.0
-        for _ in range(20):  # step through robot geoms that hang above the spot
-            dist = mujoco.mj_ray(self.model, self.data, np.array([xy[0], xy[1], z]), down, groups, 1, -1, geomid)
+        z, exclude = 3.0, -1
+        for _ in range(50):  # step through robot and visual-only geoms above the spot, one body at a time
+            dist = mujoco.mj_ray(m, self.data, np.array([xy[0], xy[1], z]), down, None, 1, exclude, geomid)
             if dist < 0:
                 break
-            if not self.robot_geom[geomid[0]]:
+            g = geomid[0]
+            if not self.robot_geom[g] and (m.geom_contype[g] or m.geom_conaffinity[g]):
                 return float(z - dist)
-            z -= dist + 1e-4
+            z, exclude = z - dist + 1e-6, int(m.geom_bodyid[g])
         raise RuntimeError(f"no support surface below {xy}")
 
     # ------------------------------------------------------------------ contacts
