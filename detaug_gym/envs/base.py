@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from detaug_gym.envs.control import make_stepper
+from detaug_gym.envs.control import CONTROLLERS, make_stepper
 from detaug_gym.envs.obstacles import (
     OBSTACLE_POINTS,
     OBSTACLE_TYPES,
@@ -59,13 +59,15 @@ class ObstacleManipulationEnv(gym.Env):
     obstacle_types: tuple[str, ...] = OBSTACLE_TYPES
 
     def __init__(self, *, num_tasks: int, object_slots: int, max_steps: int, level: str,
-                 obstacle: str | list[str] | None = None, controller: str = "stock",
+                 obstacle: str | list[str] | None = None, controller: str = "fast",
                  render_mode: str | None = None) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"unknown render_mode {render_mode!r}; valid: None, 'rgb_array'")
         self.render_mode = render_mode
         self.level = level
         self.max_steps = int(max_steps)
+        if controller not in CONTROLLERS:
+            raise ValueError(f"unknown controller {controller!r}; valid controllers: {', '.join(CONTROLLERS)}")
         self.controller = controller
         self.num_tasks = num_tasks
         self.object_slots = object_slots
