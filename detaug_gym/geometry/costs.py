@@ -1,0 +1,156 @@
+"""Collision costs of joint-space plans against the observed obstacle.
+
+All costs are hinge sums over plan steps and robot points, in metres, differentiable in the points (and
+so in the joint plan):
+
+- ``penetration``: sum of ``max(0, -sdf)`` over surface points; zero for any plan that does not touch the
+  obstacle. DetAug's selection score (the paper scores by penetration only: clearance scoring "games" the
+  metric with circuitous paths).
+- ``clearance``: sum of ``max(0, margin - sdf)``; also penalises near misses (the paper's ablation).
+- ``spheres``: sum of ``max(0, margin + r - sdf(centre))`` over the end-effector spheres (CAPE's guidance).
+
+Shapes: ``B`` plans (DetAug's K candidates), ``T`` plan steps, ``P`` robot points, ``S`` spheres.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from detaug_gym.geometry.kinematics import KinematicsResult
+from detaug_gym.geometry.robot_points import RobotGeometry, RobotSurfacePoints
+from detaug_gym.geometry.sdf import ObstacleSDF, obstacle_sdf
+
+COST_KINDS = ("penetration", "clearance", "spheres")
+DEFAULT_MARGIN = {"penetration": 0.0, "clearance": 0.05, "spheres": 0.02}
+SDF = Callable[[torch.Tensor], torch.Tensor]
+_default_robot: RobotGeometry | None = None
+
+
+def penetration_cost(points: torch.Tensor, sdf: SDF) -> torch.Tensor:
+    """Sum over plan steps and points of ``max(0, -sdf)``: points ``(..., T, P, 3)`` -> cost ``(...)``."""
+    return torch.relu(-sdf(points)).sum(dim=(-2, -1))
+
+
+def clearance_cost(points: torch.Tensor, sdf: SDF, margin: float = DEFAULT_MARGIN["clearance"]) -> torch.Tensor:
+    """Sum over plan steps and points of ``max(0, margin - sdf)``: ``(..., T, P, 3)`` -> ``(...)``."""
+    return torch.relu(margin - sdf(points)).sum(dim=(-2, -1))
+
+
+def sphere_cost(centres: torch.Tensor, radii: torch.Tensor, sdf: SDF,
+                margin: float = DEFAULT_MARGIN["spheres"]) -> torch.Tensor:
+    """Sum over plan steps and spheres of ``max(0, margin + r - sdf(centre))``.
+
+    Args:
+        centres: ``(..., T, S, 3)`` sphere centres in the world.
+        radii: ``(S,)`` radii.
+
+    Returns:
+        ``(...)`` cost.
+    """
+    return torch.relu(margin + radii - sdf(centres)).sum(dim=(-2, -1))
+
+
+def surface_hinge_cost(fk: KinematicsResult, surface: RobotSurfacePoints, sdf: ObstacleSDF,
+                       margin: float = 0.0) -> torch.Tensor:
+    """Sum over points of ``max(0, margin - sdf)`` per configuration, skipping links far from the obstacle.
+
+    Equal to ``clearance_cost`` (``penetration_cost`` at ``margin = 0``) on ``surface.world(fk)`` summed
+    over points, but only the links whose bounding ball comes within ``margin`` of the obstacle's are
+    placed and queried: far points contribute exactly zero, and usually most points are far.
+
+    Args:
+        fk: link poses ``(..., L, 3, 3)`` / ``(..., L, 3)``.
+
+    Returns:
+        ``(...)`` cost per configuration (sum over ``T`` yourself for a plan cost).
+    """
+    rot, pos = fk.rotations, fk.positions
+    batch = rot.shape[:-3]
+    num_links = rot.shape[-3]
+    rot, pos = rot.reshape(-1, num_links, 3, 3), pos.reshape(-1, num_links, 3)
+    total = torch.zeros(rot.shape[0], dtype=rot.dtype, device=rot.device)
+    if sdf.empty:
+        return (total + 0.0 * pos.sum(dim=(-2, -1))).view(batch)
+    near = _near_links(rot, pos, surface, sdf, margin)  # (N, G) bool
+    owners, queries = [], []
+    for g, (link, local) in enumerate(surface.groups(rot.dtype, rot.device)):
+        idx = torch.nonzero(near[:, g]).view(-1)
+        if idx.numel() == 0:
+            continue
+        r, p = rot[idx, link], pos[idx, link]  # (M, 3, 3), (M, 3)
+        world = (r[:, None, :, 0] * local[:, 0:1] + r[:, None, :, 1] * local[:, 1:2]
+                 + r[:, None, :, 2] * local[:, 2:3] + p[:, None, :])  # (M, n, 3)
+        owners.append(idx)
+        queries.append(world)
+    if not queries:
+        return (total + 0.0 * pos.sum(dim=(-2, -1))).view(batch)
+    values = sdf(torch.cat([q.reshape(-1, 3) for q in queries]))
+    start = 0
+    for idx, world in zip(owners, queries):
+        count = world.shape[0] * world.shape[1]
+        hinge = torch.relu(margin - values[start : start + count]).view(world.shape[0], world.shape[1]).sum(-1)
+        total = total.index_add(0, idx, hinge)
+        start += count
+    return total.view(batch)
+
+
+def _near_links(rot: torch.Tensor, pos: torch.Tensor, surface: RobotSurfacePoints, sdf: ObstacleSDF,
+                margin: float) -> torch.Tensor:
+    """``(N, G)`` whether link group g of configuration n can have a point with ``sdf < margin``."""
+    with torch.no_grad():
+        centre, radius = sdf.bounding_sphere()
+        links = surface.group_links
+        if not np.array_equal(links, np.arange(rot.shape[1])):
+            index = torch.as_tensor(links, device=rot.device)
+            rot, pos = rot.index_select(1, index), pos.index_select(1, index)
+        local = torch.as_tensor(surface.group_centres, dtype=rot.dtype, device=rot.device)  # (G, 3)
+        offset = pos - torch.as_tensor(centre, dtype=rot.dtype, device=rot.device)
+        world = offset + rot[..., 0] * local[:, 0:1] + rot[..., 1] * local[:, 1:2] + rot[..., 2] * local[:, 2:3]
+        reach = torch.as_tensor(surface.group_radii + radius + max(margin, 0.0), dtype=rot.dtype, device=rot.device)
+        return (world * world).sum(-1) < reach * reach
+
+
+def plan_collision_cost(joint_plan: torch.Tensor, obs: dict[str, np.ndarray] | None = None,
+                        robot: RobotGeometry | None = None, kind: str = "penetration", margin: float | None = None,
+                        finger_pos: torch.Tensor | None = None, sdf: ObstacleSDF | None = None) -> torch.Tensor:
+    """Collision cost of each plan: FK, robot points (or spheres), obstacle SDF, hinge, sum over steps.
+
+    Args:
+        joint_plan: ``(B, T, 7)`` arm joint positions (any leading shape ``(..., T, 7)`` works).
+        obs: the env observation (one env). Gives the obstacle (unless ``sdf`` is passed), the finger
+            positions (``gripper_qpos``, unless ``finger_pos`` is passed) and, without ``robot``, the
+            robot's base (see ``RobotGeometry.aligned_to``).
+        robot: the robot's geometry; default robosuite's Panda aligned to ``obs``.
+        kind: one of :data:`COST_KINDS`.
+        margin: hinge margin (m); default :data:`DEFAULT_MARGIN` of ``kind``.
+        finger_pos: ``(..., 2)`` finger positions, broadcastable to the plan's batch shape.
+        sdf: a prebuilt obstacle SDF (e.g. kept for the episode); default :func:`obstacle_sdf` of ``obs``.
+
+    Returns:
+        ``(B,)`` cost (``(...)`` in general) in ``joint_plan``'s dtype, differentiable in it.
+    """
+    if kind not in COST_KINDS:
+        raise ValueError(f"unknown cost kind {kind!r}; valid: {', '.join(COST_KINDS)}")
+    if obs is None and (sdf is None or robot is None):
+        raise ValueError("pass obs, or both sdf and robot")
+    margin = DEFAULT_MARGIN[kind] if margin is None else float(margin)
+    sdf = obstacle_sdf(obs) if sdf is None else sdf
+    robot = _aligned_default(obs) if robot is None else robot
+    joint_plan = torch.as_tensor(joint_plan)
+    if finger_pos is None and obs is not None and "gripper_qpos" in obs:
+        finger_pos = torch.as_tensor(np.asarray(obs["gripper_qpos"], np.float64))
+    fk = robot.kinematics(joint_plan, finger_pos)
+    if kind == "spheres":
+        centres = robot.spheres.world(fk)
+        return sphere_cost(centres, robot.spheres.radii_tensor(centres), sdf, margin)
+    return surface_hinge_cost(fk, robot.points, sdf, margin).sum(-1)
+
+
+def _aligned_default(obs: dict[str, np.ndarray]) -> RobotGeometry:
+    global _default_robot
+    if _default_robot is None:
+        _default_robot = RobotGeometry.panda()
+    return _default_robot.aligned_to(obs)

@@ -1,0 +1,227 @@
+"""Signed distance to the obstacle the policy observes, exact (trimesh + python-fcl) and baked on a grid.
+
+Convention: **sdf < 0 inside the obstacle**, > 0 outside, in metres (trimesh's own
+``signed_distance`` has the opposite sign).
+
+Shape of the obstacle: the convex hull of the observation's ``obstacle_points`` (256 surface samples).
+The observation carries no mesh, the hull is exact to build and to query, and every method sees the
+same shape. It fills concavities (a mug's handle loop, a bottle's neck) and, being the hull of samples,
+can lie a few mm inside the true outline; both are accepted simplifications.
+
+Speed: the exact distance costs ~50 us a point, so :func:`obstacle_sdf` bakes a grid (default 1 cm cells
+over the hull's box padded by 0.10 m) in the obstacle's own frame (from ``obstacle_pose``) and answers
+queries by trilinear interpolation in torch, differentiable in the query points. Baking in the obstacle
+frame means a grid is baked once per obstacle shape and re-used across episodes and when the obstacle is
+pushed; grids are cached by the shape's points. A query outside the grid gets the value at the nearest
+grid point plus the distance to it, an upper bound on the true distance that is exact far away and
+always positive there (the grid border is >= ``padding`` from the obstacle).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import fcl
+import numpy as np
+import torch
+import trimesh
+
+GRID_SPACING = 0.01  # m; 2 cm cells leave the 2.8 cm thick book with almost no interior nodes
+GRID_PADDING = 0.10  # m beyond the hull's box; covers every clearance margin in use
+NO_OBSTACLE_DISTANCE = 10.0  # m, returned everywhere when the observation has no obstacle (mask 0)
+_CACHE_SIZE = 32
+_grid_cache: OrderedDict[tuple, tuple[trimesh.Trimesh, SDFGrid]] = OrderedDict()
+
+
+@dataclass(frozen=True)
+class SDFGrid:
+    """Signed distances sampled on a regular grid.
+
+    Attributes:
+        values: ``(nx, ny, nz)`` signed distance (m) at the grid nodes.
+        origin: ``(3,)`` position of node ``(0, 0, 0)`` in the frame the grid was baked in.
+        spacing: node spacing (m).
+    """
+
+    values: np.ndarray
+    origin: np.ndarray
+    spacing: float
+
+    @property
+    def upper(self) -> np.ndarray:
+        """``(3,)`` position of the last node."""
+        return self.origin + self.spacing * (np.array(self.values.shape) - 1)
+
+
+def convex_hull(points: np.ndarray) -> trimesh.Trimesh:
+    """The convex hull of ``(N, 3)`` points (N >= 4, not all coplanar) as a closed mesh.
+
+    Raises:
+        ValueError: the points span no volume.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    try:
+        hull = trimesh.convex.convex_hull(points)
+    except Exception as err:  # qhull raises its own error types
+        raise ValueError(f"the {len(points)} obstacle points span no volume: {err}") from err
+    if not hull.is_volume:
+        raise ValueError("the convex hull of the obstacle points is not a closed volume")
+    return hull
+
+
+def exact_signed_distance(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
+    """Exact signed distance (negative inside) of ``(N, 3)`` points to a closed mesh, ``(N,)``.
+
+    Convex meshes (the obstacle hulls): inside, minus the distance to the nearest face plane (exact for
+    convex shapes, robust on the surface); outside, python-fcl's distance to the triangles. Other meshes:
+    fcl's distance signed by trimesh's ray-based ``contains``.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if mesh.is_convex:  # inside a convex mesh the distance is the nearest face plane's: no fcl needed
+        offsets = np.einsum("ij,ij->i", mesh.face_normals, mesh.triangles[:, 0])
+        planes = (points @ mesh.face_normals.T - offsets).max(axis=1)
+        inside = planes < 0.0
+        out = planes.copy()
+        out[~inside] = _surface_distance(mesh, points[~inside])
+        return out
+    return np.where(mesh.contains(points), -1.0, 1.0) * _surface_distance(mesh, points)
+
+
+def _surface_distance(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
+    """Unsigned distance ``(N,)`` of points to the mesh's triangles (python-fcl)."""
+    bvh = fcl.BVHModel()
+    bvh.beginModel(len(mesh.vertices), len(mesh.faces))
+    bvh.addSubModel(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int32))
+    bvh.endModel()
+    surface = fcl.CollisionObject(bvh, fcl.Transform())
+    probe = fcl.Sphere(0.0)
+    request = fcl.DistanceRequest()
+    dist = np.empty(len(points))
+    for i, p in enumerate(points):
+        dist[i] = fcl.distance(surface, fcl.CollisionObject(probe, fcl.Transform(p)), request, fcl.DistanceResult())
+    return np.abs(dist)
+
+
+def bake_sdf_grid(mesh: trimesh.Trimesh, spacing: float = GRID_SPACING, padding: float = GRID_PADDING) -> SDFGrid:
+    """Exact signed distances of ``mesh`` on a grid over its bounding box padded by ``padding`` (m).
+
+    Costs ~1-2 s for a SafeLIBERO obstacle at 1 cm spacing (~25k nodes; the time scales with the node
+    count, so 2 cm spacing is ~8x cheaper).
+    """
+    lo, hi = mesh.bounds[0] - padding, mesh.bounds[1] + padding
+    shape = np.ceil((hi - lo) / spacing).astype(int) + 1
+    axes = [lo[k] + spacing * np.arange(shape[k]) for k in range(3)]
+    nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    values = exact_signed_distance(mesh, nodes).reshape(*shape)
+    return SDFGrid(values, lo, float(spacing))
+
+
+class ObstacleSDF:
+    """Signed distance to one posed obstacle; call it on torch points.
+
+    Args:
+        grid: the baked grid in the obstacle frame, or ``None`` for "no obstacle".
+        rotation, translation: obstacle frame in the world, ``(3, 3)`` and ``(3,)``.
+        mesh: the obstacle's shape in its own frame (for :meth:`exact`).
+    """
+
+    def __init__(self, grid: SDFGrid | None, rotation: np.ndarray | None = None,
+                 translation: np.ndarray | None = None, mesh: trimesh.Trimesh | None = None) -> None:
+        self.grid = grid
+        self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
+        self.translation = np.zeros(3) if translation is None else np.asarray(translation, np.float64)
+        self.mesh = mesh
+        self._tensors: dict[tuple[torch.dtype, torch.device], tuple[torch.Tensor, ...]] = {}
+
+    @property
+    def empty(self) -> bool:
+        """True when there is no obstacle (every distance is :data:`NO_OBSTACLE_DISTANCE`)."""
+        return self.grid is None
+
+    def bounding_sphere(self) -> tuple[np.ndarray, float]:
+        """World centre ``(3,)`` and radius of a ball outside which the grid SDF is surely positive.
+
+        The hull's bounding ball grown by one cell diagonal (interpolation blends a cell's corners).
+        Raises ``ValueError`` for the empty SDF.
+        """
+        if self.grid is None or self.mesh is None:
+            raise ValueError("the empty SDF has no bounding sphere")
+        centre = 0.5 * (self.mesh.bounds[0] + self.mesh.bounds[1])
+        radius = float(np.linalg.norm(self.mesh.vertices - centre, axis=1).max())
+        return self.rotation @ centre + self.translation, radius + np.sqrt(3.0) * self.grid.spacing
+
+    def __call__(self, points: torch.Tensor) -> torch.Tensor:
+        """Interpolated signed distance of world points ``(..., 3)`` -> ``(...,)``, in their dtype.
+
+        Differentiable in ``points``; float32 and float64 both work.
+        """
+        points = torch.as_tensor(points)
+        if self.grid is None:
+            return 0.0 * points[..., 0] + NO_OBSTACLE_DISTANCE  # keeps the autograd graph: zero gradients
+        values, rot, trans, origin, top = self._tensor_constants(points.dtype, points.device)
+        flat = points.reshape(-1, 3)
+        local = (flat - trans) @ rot  # world -> obstacle frame (rot is orthonormal)
+        u = (local - origin) / self.grid.spacing  # continuous node coordinates
+        inside = torch.minimum(torch.maximum(u, torch.zeros_like(u)), top)
+        gap = self.grid.spacing * (torch.sqrt(((u - inside) ** 2).sum(-1) + 1e-12) - 1e-6)
+        normalised = 2.0 * inside / top - 1.0
+        sampled = torch.nn.functional.grid_sample(values, normalised.view(1, -1, 1, 1, 3), mode="bilinear",
+                                                  padding_mode="border", align_corners=True)
+        return (sampled.view(-1) + gap).view(points.shape[:-1])
+
+    def exact(self, points: np.ndarray) -> np.ndarray:
+        """Exact signed distance of world points ``(N, 3)`` (numpy), ``(N,)``; slow, for checks."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        if self.mesh is None:
+            return np.full(len(points), NO_OBSTACLE_DISTANCE)
+        return exact_signed_distance(self.mesh, (points - self.translation) @ self.rotation)
+
+    def _tensor_constants(self, dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, ...]:
+        key = (dtype, device)
+        if key not in self._tensors:
+            grid = self.grid
+            # grid_sample reads (N, C, D, H, W) with the last coordinate along D: store values as (z, y, x).
+            values = torch.as_tensor(np.ascontiguousarray(grid.values.transpose(2, 1, 0)), dtype=dtype,
+                                     device=device)[None, None]
+            top = torch.as_tensor(np.array(grid.values.shape, np.float64) - 1.0, dtype=dtype, device=device)
+            self._tensors[key] = (values, *(torch.as_tensor(x, dtype=dtype, device=device)
+                                            for x in (self.rotation, self.translation, grid.origin)), top)
+        return self._tensors[key]
+
+
+def obstacle_sdf(obs: dict[str, np.ndarray], spacing: float = GRID_SPACING,
+                 padding: float = GRID_PADDING) -> ObstacleSDF:
+    """The obstacle SDF of an env observation (one env, unbatched).
+
+    Reads ``obstacle_points`` (N, 3) world surface samples, ``obstacle_pose`` (7,) pos + xyzw quat and
+    ``obstacle_mask`` (1,). With mask 0 it returns the empty SDF. Grids are cached by the obstacle's
+    points in its own frame (rounded to 0.1 mm), so each obstacle shape is baked once per process.
+    """
+    if float(np.asarray(obs["obstacle_mask"]).reshape(-1)[0]) < 0.5:
+        return ObstacleSDF(None)
+    pose = np.asarray(obs["obstacle_pose"], np.float64)
+    rotation = quat_xyzw_to_matrix(pose[3:7])
+    local = (np.asarray(obs["obstacle_points"], np.float64) - pose[:3]) @ rotation
+    key = (hashlib.sha1(np.round(local, 4).tobytes()).hexdigest(), float(spacing), float(padding))
+    cached = _grid_cache.get(key)
+    if cached is None:
+        mesh = convex_hull(local)
+        cached = (mesh, bake_sdf_grid(mesh, spacing, padding))
+        _grid_cache[key] = cached
+        if len(_grid_cache) > _CACHE_SIZE:
+            _grid_cache.popitem(last=False)
+    else:
+        _grid_cache.move_to_end(key)
+    return ObstacleSDF(cached[1], rotation, pose[:3], cached[0])
+
+
+def quat_xyzw_to_matrix(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrix ``(3, 3)`` of a quaternion in xyzw order (normalised first)."""
+    x, y, z, w = np.asarray(quat, np.float64) / np.linalg.norm(quat)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
