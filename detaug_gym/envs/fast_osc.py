@@ -73,7 +73,7 @@ class FastStepper:
         # MjData's arrays are views on memory that lives as long as ``data``; fetch them once.
         d = self.data
         self._qpos, self._qvel, self._qfrc_bias, self._ctrl = d.qpos, d.qvel, d.qfrc_bias, d.ctrl
-        self._site_xpos, self._site_xmat = d.site_xpos, d.site_xmat
+        self._ee_pos, self._ee_xmat = d.site_xpos[self.site], d.site_xmat[self.site]
         nv = m.nv
         self._jacp = np.zeros((3, nv))
         self._jacr = np.zeros((3, nv))
@@ -103,14 +103,16 @@ class FastStepper:
     def step(self, action: np.ndarray) -> None:
         """One control step: ``substeps`` x (kinematics, OSC torques, gripper ramp, dynamics + integration)."""
         m, d = self.model, self.data
-        arm_action = action[: self.control_dim]
+        step1, step2, controls = mujoco.mj_step1, mujoco.mj_step2, self._substep_controls
         self._gripper_delta[:] = PANDA_GRIPPER_RAMP * self.gripper_speed * np.sign(action[self.control_dim:])
-        for substep in range(self.substeps):
-            mujoco.mj_step1(m, d)
-            if substep == 0:
-                self.set_goal(arm_action)
-            self._substep_controls()
-            mujoco.mj_step2(m, d)
+        step1(m, d)
+        self.set_goal(action[: self.control_dim])  # the goal is set once per control step, from this state
+        controls()
+        step2(m, d)
+        for _ in range(self.substeps - 1):
+            step1(m, d)
+            controls()
+            step2(m, d)
         self._after_step()
 
     # ------------------------------------------------------------------ control law
@@ -136,9 +138,9 @@ class FastStepper:
         """
         self._jacobian_and_mass()
         torques = np.zeros(len(self.qvel_index))
-        _osc_torques(self._jacp, self._jacr, self._mass_full, self._qpos, self._qvel, self._qfrc_bias,
-                     self._site_xpos[self.site], self._site_xmat[self.site], self.qpos_index, self.qvel_index,
-                     self.goal_pos, self.goal_ori, self._gains, self.initial_joint, torques)
+        _osc_torques(self._jacp, self._jacr, self._mass_full, self._qpos, self._qvel, self._qfrc_bias, self._ee_pos,
+                     self._ee_xmat, self.qpos_index, self.qvel_index, self.goal_pos, self.goal_ori, self._gains,
+                     self.initial_joint, torques)
         return torques
 
     def _jacobian_and_mass(self) -> None:
@@ -148,12 +150,10 @@ class FastStepper:
     def _substep_controls(self) -> None:
         """Arm torques (clipped) and the gripper ramp into ``ctrl``, as robosuite's ``robot.control`` does."""
         self._jacobian_and_mass()
-        torques = self._torques
-        _osc_torques(self._jacp, self._jacr, self._mass_full, self._qpos, self._qvel, self._qfrc_bias,
-                     self._site_xpos[self.site], self._site_xmat[self.site], self.qpos_index, self.qvel_index,
-                     self.goal_pos, self.goal_ori, self._gains, self.initial_joint, torques)
-        _write_controls(torques, self._torque_limits, self.arm_actuators, self.gripper_action, self._gripper_delta,
-                        self._gripper_map, self.gripper_actuators, self._ctrl)
+        _osc_substep(self._jacp, self._jacr, self._mass_full, self._qpos, self._qvel, self._qfrc_bias, self._ee_pos,
+                     self._ee_xmat, self.qpos_index, self.qvel_index, self.goal_pos, self.goal_ori, self._gains,
+                     self.initial_joint, self._torques, self._torque_limits, self.arm_actuators,
+                     self.gripper_action, self._gripper_delta, self._gripper_map, self.gripper_actuators, self._ctrl)
 
     # ------------------------------------------------------------------ bookkeeping
     def _after_step(self) -> None:
@@ -269,9 +269,12 @@ def _spd_solve(a, b):
 
 
 @numba.njit(cache=True)
-def _write_controls(torques, torque_limits, arm_actuators, gripper_action, gripper_delta, gripper_map,
-                    gripper_actuators, ctrl):
-    """robosuite's ``robot.control`` tail: clipped arm torques and the stateful gripper ramp into ``ctrl``."""
+def _osc_substep(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, qpos_index, qvel_index, goal_pos,
+                 goal_ori, gains, initial_joint, torques, torque_limits, arm_actuators, gripper_action,
+                 gripper_delta, gripper_map, gripper_actuators, ctrl):
+    """One substep of robosuite's ``robot.control``: OSC torques, clipped into ``ctrl``, and the gripper ramp."""
+    _osc_torques(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, qpos_index, qvel_index, goal_pos,
+                 goal_ori, gains, initial_joint, torques)
     for j in range(arm_actuators.shape[0]):
         ctrl[arm_actuators[j]] = min(max(torques[j], torque_limits[0, j]), torque_limits[1, j])
     for g in range(gripper_actuators.shape[0]):
