@@ -1,0 +1,168 @@
+"""Flow-policy checkpoint folders: what is in them, how to write them safely and how to read them.
+
+A checkpoint folder (``policies/<method>/<suite>/``) holds::
+
+    model.pt            EMA weights of the network (state dict; the only file inference needs besides the two below)
+    config.json         network architecture, plan layout, observation keys, the training config and summary
+    normalization.json  plan / observation normalisers and the training labels (DetAug's sampling support)
+    train_state.pt      (training only) raw weights, EMA, optimiser, scheduler, step: lets training resume;
+                        not needed for inference and not meant for the zoo
+
+Every file is written to a temporary name and renamed, so an interrupted save never leaves a torn file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from detaug_gym.models.dataset import OBS_KEYS, PlanLayout
+from detaug_gym.models.network import FlowNetwork, NetworkConfig
+from detaug_gym.models.normalize import Normalizer
+
+METHODS = ("base", "detaug", "demogen")
+WEIGHTS, CONFIG, NORMALIZATION, TRAIN_STATE = "model.pt", "config.json", "normalization.json", "train_state.pt"
+FORMAT_VERSION = 1
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint folder is missing or unreadable; the message names the command that makes it."""
+
+
+def train_command(path: str | Path, method: str | None = None, data: str | None = None) -> str:
+    """The command that (re)creates the checkpoint at ``path``."""
+    path = Path(path)
+    if method is None:
+        method = next((part for part in reversed(path.parts) if part in METHODS), "|".join(METHODS))
+    return f"python -m detaug_gym.train --method {method} --data {data or '<demos.hdf5>'} --out {path}"
+
+
+def _atomic_write(path: Path, write) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_json(path: Path, data: dict) -> None:
+    _atomic_write(path, lambda p: p.write_text(json.dumps(data, indent=2) + "\n"))
+
+
+def torch_save(path: Path, obj) -> None:
+    _atomic_write(path, lambda p: torch.save(obj, p))
+
+
+@dataclass
+class LabelSupport:
+    """The labels seen in training: ``bank`` (N, L) with the task id of each row, and per-dim bounds."""
+
+    bank: np.ndarray
+    task: np.ndarray
+
+    @property
+    def dim(self) -> int:
+        return int(self.bank.shape[1]) if self.bank.ndim == 2 else 0
+
+    @property
+    def low(self) -> np.ndarray:
+        return self.bank.min(0) if len(self.bank) else np.zeros(self.dim, np.float32)
+
+    @property
+    def high(self) -> np.ndarray:
+        return self.bank.max(0) if len(self.bank) else np.zeros(self.dim, np.float32)
+
+    def to_dict(self) -> dict:
+        return {"bank": self.bank.tolist(), "task": self.task.tolist(), "low": self.low.tolist(),
+                "high": self.high.tolist()}
+
+    @classmethod
+    def from_dict(cls, data: dict | None) -> LabelSupport:
+        if not data or not data.get("bank"):
+            return cls(np.zeros((0, 0), np.float32), np.zeros(0, np.int64))
+        return cls(np.asarray(data["bank"], np.float32), np.asarray(data["task"], np.int64))
+
+
+@dataclass
+class Checkpoint:
+    """A loaded checkpoint: the network in eval mode with its EMA weights, and everything around it."""
+
+    path: Path
+    method: str
+    network: FlowNetwork
+    layout: PlanLayout
+    obs_keys: tuple[str, ...]
+    normalizers: dict[str, Normalizer]
+    labels: LabelSupport
+    n_points: int = 0
+    config: dict = field(default_factory=dict)
+
+
+def save_checkpoint(path: str | Path, *, method: str, network: FlowNetwork, ema_state: dict, layout: PlanLayout,
+                    obs_keys: tuple[str, ...], normalizers: dict[str, Normalizer], labels: LabelSupport,
+                    n_points: int = 0, extra_config: dict | None = None) -> None:
+    """Write ``model.pt`` (the EMA weights ``ema_state``), ``config.json`` and ``normalization.json``."""
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    torch_save(path / WEIGHTS, ema_state)
+    write_json(path / NORMALIZATION, {name: n.to_dict() for name, n in normalizers.items()}
+               | {"labels": labels.to_dict()})
+    write_json(path / CONFIG, {
+        "format": FORMAT_VERSION, "method": method, "network": network.config.to_dict(),
+        "layout": layout.to_dict(), "obs_keys": list(obs_keys), "n_points": n_points,
+        "parameters": network.num_parameters(), **(extra_config or {}),
+    })
+
+
+def read_config(path: str | Path) -> dict:
+    """``config.json`` of a checkpoint folder, or a :class:`CheckpointError` naming the train command."""
+    path = Path(path)
+    try:
+        return json.loads((path / CONFIG).read_text())
+    except FileNotFoundError:
+        raise CheckpointError(f"no flow-policy checkpoint at {path} ({CONFIG} missing). Make it with:\n  "
+                              f"{train_command(path)}") from None
+    except (OSError, ValueError) as err:
+        raise CheckpointError(f"unreadable {path / CONFIG} ({err}). Remake it with:\n  "
+                              f"{train_command(path)}") from None
+
+
+def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Checkpoint:
+    """Load a checkpoint folder written by ``python -m detaug_gym.train``.
+
+    Raises:
+        CheckpointError: a file is missing, corrupt or does not match its config; the message gives the
+            train command that (re)creates the folder.
+    """
+    path = Path(path)
+    config = read_config(path)
+    method = config.get("method")
+    command = train_command(path, method, config.get("train", {}).get("data"))
+    try:
+        network = FlowNetwork(NetworkConfig.from_dict(config["network"]))
+        state = torch.load(path / WEIGHTS, map_location=device, weights_only=True)
+        network.load_state_dict(state)
+        norm = json.loads((path / NORMALIZATION).read_text())
+        normalizers = {name: Normalizer.from_dict(norm[name]) for name in ("plan", "obs")}
+        checkpoint = Checkpoint(
+            path=path, method=method, network=network.to(device).eval(),
+            layout=PlanLayout.from_dict(config["layout"]), obs_keys=tuple(config.get("obs_keys", OBS_KEYS)),
+            normalizers=normalizers, labels=LabelSupport.from_dict(norm.get("labels")),
+            n_points=int(config.get("n_points", 0)), config=config)
+    except FileNotFoundError as err:
+        raise CheckpointError(f"incomplete checkpoint at {path}: {Path(err.filename or WEIGHTS).name} missing. "
+                              f"Remake it with:\n  {command}") from None
+    except Exception as err:  # noqa: BLE001  (any decoding failure means the same thing to the user)
+        reason = (str(err).strip().splitlines() or [""])[0][:160]
+        raise CheckpointError(f"corrupt checkpoint at {path} ({type(err).__name__}: {reason}). "
+                              f"Remake it with:\n  {command}") from None
+    if checkpoint.normalizers["plan"].dim != checkpoint.layout.plan_dim:
+        raise CheckpointError(f"{path}: plan normaliser does not match the plan layout. Remake it with:\n  {command}")
+    return checkpoint

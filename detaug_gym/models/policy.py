@@ -1,0 +1,216 @@
+"""``FlowPolicy``: inference for a trained flow checkpoint (no training code here).
+
+Chunking protocol (what the bench sees)::
+
+    policy.reset(seed)   # clears the action queue, reseeds the sampling noise
+    policy.act(obs)      # queue empty -> plan H steps from obs, queue the first `action_steps` actions;
+                         # pop and return one action (7,) float32
+
+So the policy replans every ``action_steps`` (N = 10) env steps; a plan covers ``horizon`` (H = 50) steps.
+Actions are predicted normalised, unnormalised to env units (OSC_POSE delta in [-1, 1] + gripper),
+clipped to [-1, 1], and the gripper is snapped to -1 (open) / +1 (close).
+
+Methods built on the same model (DetAug selection, CAPE, guidance ablations) call :meth:`FlowPolicy.plan`
+for batches of K plans and override :meth:`FlowPolicy.next_plan` to choose one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections import deque
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from detaug_gym.models.checkpoint import Checkpoint, load_checkpoint
+from detaug_gym.models.dataset import observation_vector
+from detaug_gym.models.flow import Guidance, Inpaint, remaining_steps, sample
+
+LABEL_MODES = ("auto", "zero", "null")
+
+
+def zoo_dir(method: str, suite: str) -> Path:
+    """``policies/<method>/<suite>/`` of the repository (or under ``$DETAUG_ZOO`` when set)."""
+    root = Path(os.environ.get("DETAUG_ZOO", Path(__file__).resolve().parents[2] / "policies"))
+    return root / method / suite
+
+
+class FlowPolicy:
+    """A flow-matching chunking policy.
+
+    Args:
+        checkpoint: a checkpoint folder or a loaded :class:`Checkpoint`.
+        action_steps: N, actions executed from each plan before replanning (1..horizon).
+        flow_steps: Euler steps per plan.
+        label_mode: label used by :meth:`act`: ``"zero"`` (the unaugmented demos' label), ``"null"`` (the
+            null token: unconditional) or ``"auto"`` (zero for label models, nothing for ``base``).
+        binarize_gripper: snap the gripper command to -1 / +1.
+        seed: default seed for :meth:`reset` without one.
+    """
+
+    def __init__(self, checkpoint: Checkpoint | str | Path, action_steps: int = 10, flow_steps: int = 10,
+                 label_mode: str = "auto", binarize_gripper: bool = True, seed: int | None = None) -> None:
+        self.checkpoint = checkpoint if isinstance(checkpoint, Checkpoint) else load_checkpoint(checkpoint)
+        self.network = self.checkpoint.network
+        self.layout = self.checkpoint.layout
+        self.horizon = self.network.config.dit.horizon
+        if not 1 <= action_steps <= self.horizon:
+            raise ValueError(f"action_steps must lie in [1, {self.horizon}], got {action_steps}")
+        if flow_steps < 1:
+            raise ValueError(f"flow_steps must be >= 1, got {flow_steps}")
+        if label_mode not in LABEL_MODES:
+            raise ValueError(f"unknown label_mode {label_mode!r}; valid: {', '.join(LABEL_MODES)}")
+        self.action_steps, self.flow_steps = int(action_steps), int(flow_steps)
+        self.label_mode, self.binarize_gripper = label_mode, binarize_gripper
+        self._default_seed = seed
+        self._queue: deque[np.ndarray] = deque()
+        self.generator = torch.Generator()
+        self.reset(seed)
+
+    @classmethod
+    def load(cls, path: str | Path, **options) -> FlowPolicy:
+        """Load a checkpoint folder; a missing or corrupt one raises ``CheckpointError`` naming the train
+        command that makes it."""
+        return cls(load_checkpoint(path), **options)
+
+    @classmethod
+    def from_zoo(cls, method: str, suite: str, **options) -> FlowPolicy:
+        """Load ``policies/<method>/<suite>/``."""
+        return cls.load(zoo_dir(method, suite), **options)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def label_dim(self) -> int:
+        return self.network.config.dit.label_dim
+
+    @property
+    def labels(self):
+        """Training label support (:class:`~detaug_gym.models.checkpoint.LabelSupport`)."""
+        return self.checkpoint.labels
+
+    # ------------------------------------------------------------------ protocol
+    def reset(self, seed: int | None = None) -> None:
+        """Clear the action queue and reseed the sampling noise."""
+        self._queue.clear()
+        seed = self._default_seed if seed is None else seed
+        if seed is None:
+            self.generator.seed()
+        else:
+            self.generator.manual_seed(int(seed))
+
+    def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Next env action (7,) float32; replans when the queue is empty."""
+        if not self._queue:
+            chunk = self.env_actions(self.next_plan(obs))[: self.action_steps]
+            self._queue.extend(chunk)
+        return self._queue.popleft()
+
+    def next_plan(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The plan (H, D) to execute from ``obs``; subclasses override this to select among candidates."""
+        mode = self.label_mode
+        if mode == "auto":
+            mode = "zero" if self.label_dim else "null"
+        labels = np.zeros((1, self.label_dim), np.float32) if mode == "zero" and self.label_dim else None
+        return self.plan(obs, labels, num_samples=1)[0].numpy()
+
+    # ------------------------------------------------------------------ planning
+    def env_actions(self, plan: np.ndarray | torch.Tensor) -> np.ndarray:
+        """Env actions (..., H, 7) float32 of plans in physical units: clipped, gripper snapped."""
+        actions = np.asarray(plan[..., self.layout.action_slice], dtype=np.float32).clip(-1.0, 1.0)
+        if self.binarize_gripper:
+            actions[..., -1] = np.where(actions[..., -1] >= 0.0, 1.0, -1.0)
+        return actions
+
+    def plan(self, obs: Mapping[str, np.ndarray], labels: np.ndarray | torch.Tensor | None = None, *,
+             num_samples: int | None = None, guidance: Guidance | None = None,
+             init_plan: np.ndarray | torch.Tensor | None = None, t_start: float = 0.0, steps: int | None = None,
+             generator: torch.Generator | None = None) -> torch.Tensor:
+        """Sample K plans in one batched call.
+
+        Args:
+            obs: one env observation (keys unbatched) or a batch (leading dim B = K).
+            labels: (K, L) augmentation labels; ``None`` uses the null token (or nothing for ``base``).
+            num_samples: K when ``labels`` is None (default 1 or the obs batch size).
+            guidance: gradient guidance whose ``cost`` takes *physical-unit* plans (K, H, D); the gradient
+                step is taken in normalised coordinates.
+            init_plan: (K, H, D) physical plans to re-noise to ``t_start`` and denoise again (CAPE); see
+                :func:`shift_plan`. Without it sampling starts from pure noise at ``t_start = 0``.
+            steps: Euler steps; default ``flow_steps`` scaled to the remaining flow time.
+            generator: noise source; default the policy's (seeded by :meth:`reset`).
+        Returns:
+            plans (K, H, D) float32 in physical units; ``plan[:, 0, state]`` is the current state.
+        """
+        net, norm = self.network, self.checkpoint.normalizers
+        batch = _batched(obs)
+        k = _count(batch, labels, num_samples)
+        obs_cond = torch.from_numpy(norm["obs"].normalize(observation_vector(batch, self.checkpoint.obs_keys)))
+        state = torch.from_numpy(self.layout.state_vector(batch))
+        obs_cond, state = obs_cond.expand(k, -1), state.expand(k, -1)
+        label = self._label_tensor(labels, k)
+        points, point_mask = self._points(batch, k)
+        shape = (k, self.horizon, self.layout.plan_dim)
+        known = torch.zeros(shape, dtype=torch.bool)
+        known[:, 0, self.layout.state_slice] = True
+        first = torch.cat([state, torch.zeros(k, self.layout.action_dim)], dim=-1)
+        inpaint = Inpaint(known, norm["plan"].normalize(first)[:, None].expand(shape))
+        x_start = None if init_plan is None else norm["plan"].normalize(torch.as_tensor(init_plan).float())
+        if guidance is not None:
+            user_cost = guidance.cost
+            guidance = dataclasses.replace(guidance, cost=lambda x, t: user_cost(norm["plan"].unnormalize(x), t))
+        with torch.no_grad():
+            extra = net.extra(points, point_mask)
+
+        def velocity(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+            return net.dit(x, t, obs_cond, label, extra)
+
+        steps = steps or (self.flow_steps if init_plan is None else remaining_steps(self.flow_steps, t_start))
+        x = sample(velocity, shape, steps=steps, t_start=t_start, x_start=x_start, inpaint=inpaint,
+                   guidance=guidance, generator=generator or self.generator)
+        return norm["plan"].unnormalize(x)
+
+    def _label_tensor(self, labels, k: int) -> torch.Tensor | None:
+        if labels is None:
+            return None
+        if not self.label_dim:
+            raise ValueError(f"{self.checkpoint.method!r} policy has no label input; pass labels=None")
+        label = torch.as_tensor(np.asarray(labels, np.float32)).reshape(-1, self.label_dim)
+        if len(label) != k:
+            raise ValueError(f"got {len(label)} labels for {k} samples")
+        return label
+
+    def _points(self, batch: dict, k: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        if self.network.point_encoder is None:
+            return None, None
+        if "obstacle_points" not in batch:
+            raise KeyError("the demogen policy reads 'obstacle_points' (and 'obstacle_mask') from the observation")
+        points = torch.as_tensor(np.asarray(batch["obstacle_points"], np.float32)).expand(k, -1, -1)
+        mask = np.asarray(batch.get("obstacle_mask", np.ones((len(batch["obstacle_points"]), 1))), np.float32)
+        return points, torch.as_tensor(mask).reshape(len(mask), -1)[:, :1].expand(k, 1)
+
+
+def shift_plan(plan: np.ndarray | torch.Tensor, executed: int, action_dim: int = 7) -> torch.Tensor:
+    """Drop the first ``executed`` steps of plans (K, H, D) and pad the end like the training windows (the
+    final state, zero arm delta, the final gripper command): CAPE's unexecuted remainder, ready to re-noise."""
+    plan = torch.as_tensor(plan)
+    tail = plan[:, -1:].clone()
+    tail[..., -action_dim:-1] = 0.0
+    return torch.cat([plan[:, executed:], tail.expand(-1, executed, -1)], dim=1)
+
+
+def _batched(obs: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Add a leading batch dim to a single env observation (detected on ``robot_joint_pos``)."""
+    single = np.ndim(obs["robot_joint_pos"]) == 1
+    return {key: np.asarray(value)[None] if single else np.asarray(value) for key, value in obs.items()}
+
+
+def _count(batch: dict, labels, num_samples: int | None) -> int:
+    b = len(batch["robot_joint_pos"])
+    if labels is not None and num_samples not in (None, len(labels)):
+        raise ValueError(f"got {len(labels)} labels for num_samples={num_samples}")
+    k = len(labels) if labels is not None else (num_samples or b)
+    if b not in (1, k):
+        raise ValueError(f"observation batch of {b} does not match {k} samples")
+    return k

@@ -1,0 +1,337 @@
+"""Train a flow-matching DiT policy on demonstrations (CPU).
+
+Commands (one per method; rerunning the same command resumes an interrupted run)::
+
+    python -m detaug_gym.train --method base    --data data/spatial/demos.hdf5     --out policies/base/spatial
+    python -m detaug_gym.train --method detaug  --data data/spatial/augmented.hdf5 --out policies/detaug/spatial
+    python -m detaug_gym.train --method demogen --data data/spatial/demogen.hdf5   --out policies/demogen/spatial
+    # graft the label onto the trained base policy and train only the adapter (paper, "Adapting ...")
+    python -m detaug_gym.train --method detaug --data data/spatial/augmented.hdf5 \\
+        --out policies/detaug-adapter/spatial --init-from policies/base/spatial --adapter-only
+    python -m detaug_gym.train --help       # every option with its meaning
+
+``base`` learns the unaugmented demos without a label (the frozen prior of CAPE and AEGIS); ``detaug`` learns
+the augmented demos with their labels, dropped to the null token with probability ``label_dropout``;
+``demogen`` encodes each demo's obstacle cloud with a DP3-style encoder added to the AdaLN conditioning.
+
+The output folder gets ``model.pt`` (EMA weights), ``config.json``, ``normalization.json`` (what inference
+needs, see :mod:`detaug_gym.models.checkpoint`), plus ``train_state.pt`` (resume) and ``train_log.csv``.
+Load the result with ``FlowPolicy.load(out)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import csv
+import dataclasses
+import inspect
+import math
+import sys
+import textwrap
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from detaug_gym.models.checkpoint import (
+    METHODS,
+    TRAIN_STATE,
+    LabelSupport,
+    load_checkpoint,
+    save_checkpoint,
+    torch_save,
+)
+from detaug_gym.models.dataset import OBS_KEYS, PlanLayout, WindowDataset, read_demos
+from detaug_gym.models.dit import DiTConfig
+from detaug_gym.models.flow import Inpaint, flow_matching_loss
+from detaug_gym.models.network import FlowNetwork, NetworkConfig
+
+# Fields that may change when resuming with the same command (the rest must match the saved run).
+RESUMABLE_CHANGES = ("steps", "checkpoint_every", "threads", "progress", "log_every")
+
+
+@dataclass
+class TrainConfig:
+    method: str = "base"
+    """base (no label, unaugmented data) | detaug (labels + null token) | demogen (obstacle point cloud)."""
+    data: str = ""
+    """Demonstration HDF5 (data/demo_<i>/{actions, obs/...}, plus label or obstacle_points)."""
+    out: str = ""
+    """Output folder, e.g. policies/<method>/<suite>/."""
+    steps: int = 12_000
+    """Optimiser steps in total (a resumed run continues up to this number)."""
+    batch_size: int = 128
+    """Windows per step."""
+    lr: float = 3e-4
+    """Peak AdamW learning rate."""
+    weight_decay: float = 1e-4
+    """AdamW weight decay."""
+    warmup_steps: int = 500
+    """Linear warmup steps before the cosine decay to zero."""
+    grad_clip: float = 1.0
+    """Global gradient-norm clip."""
+    ema_decay: float = 0.999
+    """EMA decay of the saved weights (ramped up over the first steps)."""
+    label_dropout: float = 0.15
+    """detaug: probability of replacing a label by the null token."""
+    horizon: int = 50
+    """H: timesteps per plan."""
+    steps_per_token: int = 5
+    """Timesteps packed into one transformer token (divides horizon)."""
+    d_model: int = 128
+    """Transformer width."""
+    layers: int = 4
+    """AdaLN-Zero blocks."""
+    heads: int = 4
+    """Attention heads."""
+    obs_tokens: int = 2
+    """Observation prefix tokens."""
+    n_points: int = 256
+    """demogen: points per obstacle cloud."""
+    init_from: str = ""
+    """Checkpoint folder whose weights (and normalisers) initialise the network: fine-tuning."""
+    adapter_only: bool = False
+    """Train only the adapter (label encoder, null token, AdaLN modulation, point encoder); needs init_from."""
+    checkpoint_every: int = 1000
+    """Steps between checkpoints (also written at the end and on Ctrl-C)."""
+    log_every: int = 50
+    """Steps between rows of train_log.csv."""
+    seed: int = 0
+    """Seed of initialisation and batch sampling."""
+    threads: int = 2
+    """torch CPU threads."""
+    progress: bool = True
+    """Show a progress bar."""
+    restart: bool = False
+    """Ignore an existing train_state.pt in --out and start over."""
+
+
+# ---------------------------------------------------------------------------------------------- CLI
+def _field_docs(cls: type) -> dict[str, str]:
+    """Attribute docstrings (the string literal under each field), for --help."""
+    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
+    docs = {}
+    for node, nxt in zip(body, body[1:]):
+        if isinstance(node, ast.AnnAssign) and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant):
+            docs[node.target.id] = str(nxt.value.value)
+    return docs
+
+
+def parse_args(argv: list[str] | None = None) -> TrainConfig:
+    parser = argparse.ArgumentParser(prog="python -m detaug_gym.train", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    docs, types = _field_docs(TrainConfig), {"int": int, "float": float, "str": str}
+    for f in dataclasses.fields(TrainConfig):
+        flag = "--" + f.name.replace("_", "-")
+        if f.type == "bool":
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default, help=docs[f.name])
+        else:
+            parser.add_argument(flag, type=types[f.type], default=f.default, help=docs[f.name],
+                                choices=METHODS if f.name == "method" else None)
+    return TrainConfig(**vars(parser.parse_args(argv)))
+
+
+def check_config(cfg: TrainConfig) -> None:
+    """Fail before any work with a message that says what to pass."""
+    if not cfg.data:
+        raise SystemExit("error: --data is required: the demonstrations HDF5 to learn from "
+                         "(data/demo_<i>/{actions, obs/...}), made by the collection or augmentation commands")
+    if not Path(cfg.data).is_file():
+        raise SystemExit(f"error: --data {cfg.data}: no such file")
+    if not cfg.out:
+        raise SystemExit(f"error: --out is required, e.g. --out policies/{cfg.method}/<suite>")
+    if cfg.adapter_only and not cfg.init_from:
+        raise SystemExit("error: --adapter-only fine-tunes a trained policy: pass --init-from <checkpoint folder>")
+    if cfg.steps < 1 or cfg.batch_size < 1 or not 0.0 <= cfg.label_dropout < 1.0:
+        raise SystemExit("error: need steps >= 1, batch_size >= 1 and 0 <= label_dropout < 1")
+
+
+# ---------------------------------------------------------------------------------------------- pieces
+class EMA:
+    """Exponential moving average of a model's state; the decay ramps as min(decay, (1 + n) / (10 + n))
+    so short runs and early checkpoints are not dominated by the random initialisation."""
+
+    def __init__(self, model: torch.nn.Module, decay: float) -> None:
+        self.decay, self.updates = decay, 0
+        self.state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+
+    @torch.no_grad()
+    def update(self, model: torch.nn.Module) -> None:
+        self.updates += 1
+        decay = min(self.decay, (1 + self.updates) / (10 + self.updates))
+        for key, value in model.state_dict().items():
+            if value.dtype.is_floating_point:
+                self.state[key].lerp_(value, 1.0 - decay)
+            else:
+                self.state[key].copy_(value)
+
+
+def lr_factor(step: int, warmup: int, total: int) -> float:
+    """Linear warmup to 1, then cosine decay to 0 at ``total``."""
+    if step < warmup:
+        return (step + 1) / warmup
+    progress = min(1.0, (step - warmup) / max(1, total - warmup))
+    return 0.5 * (1.0 + math.cos(math.pi * progress))
+
+
+def build_network(cfg: TrainConfig, data: WindowDataset, init=None) -> FlowNetwork:
+    """The network for ``cfg.method``; with ``init`` (a loaded checkpoint) its architecture and weights."""
+    arch = init.network.config.dit if init is not None else None
+    dit = DiTConfig(
+        plan_dim=data.layout.plan_dim, obs_dim=data.obs_dim, horizon=cfg.horizon,
+        steps_per_token=arch.steps_per_token if arch else cfg.steps_per_token,
+        d_model=arch.d_model if arch else cfg.d_model, n_layers=arch.n_layers if arch else cfg.layers,
+        n_heads=arch.n_heads if arch else cfg.heads, obs_tokens=arch.obs_tokens if arch else cfg.obs_tokens,
+        label_dim=data.label_dim, extra_dim=64 if cfg.method == "demogen" else 0)
+    network = FlowNetwork(NetworkConfig(dit, point_cloud=cfg.method == "demogen"))
+    if init is not None:
+        missing, unexpected = network.load_state_dict(init.network.state_dict(), strict=False)
+        if unexpected:
+            raise SystemExit(f"error: --init-from {cfg.init_from} has weights this {cfg.method} network "
+                             f"lacks: {unexpected[:5]}")
+        new_parts = sorted({".".join(k.split(".")[:2]) for k in missing})
+        print(f"initialised from {cfg.init_from}; new parts (zero-initialised outputs): {new_parts}")
+    return network
+
+
+def load_data(cfg: TrainConfig, init=None) -> WindowDataset:
+    demos = read_demos(cfg.data, OBS_KEYS)
+    return WindowDataset(demos, cfg.horizon, PlanLayout(), OBS_KEYS, use_labels=cfg.method == "detaug",
+                         n_points=cfg.n_points if cfg.method == "demogen" else 0,
+                         normalizers=init.normalizers if init is not None else None, seed=cfg.seed)
+
+
+def resume_state(cfg: TrainConfig) -> dict | None:
+    """The saved training state in ``cfg.out`` (None to start fresh); refuses a different run's folder."""
+    path = Path(cfg.out) / TRAIN_STATE
+    if cfg.restart or not path.is_file():
+        return None
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # noqa: BLE001
+        raise SystemExit(f"error: cannot read {path} ({err}); rerun with --restart to start over") from None
+    saved = state["config"]
+    changed = {k: (saved[k], v) for k, v in dataclasses.asdict(cfg).items()
+               if k not in RESUMABLE_CHANGES and k != "restart" and saved.get(k) != v}
+    if changed:
+        raise SystemExit(f"error: {cfg.out} holds a different run (saved vs now: {changed}); "
+                         "use the same options to resume, another --out, or --restart")
+    return state
+
+
+# ---------------------------------------------------------------------------------------------- training
+def train(cfg: TrainConfig) -> dict:
+    """Train (or resume) and return a summary: steps, final loss, wall time, step time, parameters."""
+    check_config(cfg)
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    out = Path(cfg.out)
+    init = load_checkpoint(cfg.init_from) if cfg.init_from else None
+    data = load_data(cfg, init)
+    network = build_network(cfg, data, init)
+    trainable = network.adapter_parameters() if cfg.adapter_only else list(network.parameters())
+    for p in network.parameters():
+        p.requires_grad_(False)
+    for p in trainable:
+        p.requires_grad_(True)
+    optimizer = torch.optim.AdamW(trainable, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, cfg.warmup_steps, cfg.steps))
+    ema = EMA(network, cfg.ema_decay)
+    generator = torch.Generator().manual_seed(cfg.seed)
+    step, elapsed, losses = 0, 0.0, []
+    state = resume_state(cfg)
+    if state is not None:
+        network.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        schedule.load_state_dict(state["schedule"])
+        ema.state, ema.updates = state["ema"], state["ema_updates"]
+        generator.set_state(state["generator"])
+        step, elapsed, losses = state["step"], state["elapsed"], state["recent_losses"]
+        print(f"resuming {out} at step {step}/{cfg.steps}")
+    n_params = network.num_parameters()
+    print(f"{cfg.method}: {len(data)} windows from {data.num_demos} demos, {n_params / 1e6:.2f}M parameters "
+          f"({sum(p.numel() for p in trainable) / 1e6:.2f}M trained), label dim {data.label_dim}")
+
+    known = torch.zeros(1, cfg.horizon, data.layout.plan_dim, dtype=torch.bool)
+    known[:, 0, data.layout.state_slice] = True  # the current state is inpainted, never predicted
+
+    def checkpoint(final: bool = False) -> dict:
+        summary = {"steps": step, "final_loss": float(np.mean(losses[-100:])) if losses else None,
+                   "wall_time_s": round(elapsed, 1), "step_time_s": round(elapsed / max(1, step), 4),
+                   "parameters": n_params, "finished": final}
+        bank, task = data.label_bank()
+        save_checkpoint(out, method=cfg.method, network=network, ema_state=ema.state, layout=data.layout,
+                        obs_keys=OBS_KEYS, normalizers=data.normalizers, labels=LabelSupport(bank, task),
+                        n_points=cfg.n_points if cfg.method == "demogen" else 0,
+                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary})
+        torch_save(out / TRAIN_STATE, {
+            "config": dataclasses.asdict(cfg), "model": network.state_dict(), "optimizer": optimizer.state_dict(),
+            "schedule": schedule.state_dict(), "ema": ema.state, "ema_updates": ema.updates,
+            "generator": generator.get_state(), "step": step, "elapsed": elapsed, "recent_losses": losses[-100:]})
+        return summary
+
+    out.mkdir(parents=True, exist_ok=True)
+    log = open(out / "train_log.csv", "a", newline="")  # noqa: SIM115  (closed in finally)
+    writer = csv.writer(log)
+    if log.tell() == 0:
+        writer.writerow(["step", "loss", "lr", "elapsed_s"])
+    bar = tqdm(total=cfg.steps, initial=step, disable=not cfg.progress, desc=f"train {cfg.method}", unit="step")
+    try:
+        while step < cfg.steps:
+            tic = time.perf_counter()
+            loss = train_step(network, data, optimizer, cfg, known, generator)
+            schedule.step()
+            ema.update(network)
+            elapsed += time.perf_counter() - tic
+            step += 1
+            losses.append(loss)
+            bar.update()
+            if step % cfg.log_every == 0 or step == cfg.steps:
+                mean = float(np.mean(losses[-cfg.log_every:]))
+                bar.set_postfix(loss=f"{mean:.4f}", lr=f"{schedule.get_last_lr()[0]:.1e}")
+                writer.writerow([step, f"{mean:.6f}", f"{schedule.get_last_lr()[0]:.3e}", f"{elapsed:.1f}"])
+                log.flush()
+            if step % cfg.checkpoint_every == 0 and step < cfg.steps:
+                checkpoint()
+    except KeyboardInterrupt:
+        bar.close()
+        checkpoint()
+        raise SystemExit(f"interrupted at step {step}; checkpoint saved. Rerun the same command to resume.") from None
+    finally:
+        bar.close()
+        log.close()
+    summary = checkpoint(final=True)
+    print(f"done: {summary}")
+    return summary
+
+
+def train_step(network: FlowNetwork, data: WindowDataset, optimizer: torch.optim.Optimizer, cfg: TrainConfig,
+               known: torch.Tensor, generator: torch.Generator) -> float:
+    """One optimiser step on a fresh batch; returns the loss."""
+    batch = data.sample(cfg.batch_size, generator)
+    drop = None
+    if batch.label is not None and cfg.label_dropout > 0:
+        drop = torch.rand(cfg.batch_size, generator=generator) < cfg.label_dropout
+
+    def velocity(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        return network(x, t, batch.obs, batch.label, batch.points, batch.point_mask, drop)
+
+    loss = flow_matching_loss(velocity, batch.plan, Inpaint(known, batch.plan), generator)
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    torch.nn.utils.clip_grad_norm_(params, cfg.grad_clip)
+    optimizer.step()
+    return loss.item()
+
+
+def main(argv: list[str] | None = None) -> None:
+    train(parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
