@@ -79,6 +79,7 @@ class FastStepper:
         self._jacr = np.zeros((3, nv))
         self._mass_full = np.zeros((nv, nv))
         self._torques = np.zeros(len(self.qvel_index))
+        self._scratch = np.zeros(6 + len(self.qvel_index))  # task-space command, posture term
         self.reset()
 
     # ------------------------------------------------------------------ stepper protocol
@@ -138,9 +139,10 @@ class FastStepper:
         """
         self._jacobian_and_mass()
         torques = np.zeros(len(self.qvel_index))
-        _osc_torques(self._jacp, self._jacr, self._mass_full, self._qpos, self._qvel, self._qfrc_bias, self._ee_pos,
-                     self._ee_xmat, self.qpos_index, self.qvel_index, self.goal_pos, self.goal_ori, self._gains,
-                     self.initial_joint, torques)
+        if not _osc_torques(self._jacp, self._jacr, self._mass_full, self._qpos, self._qvel, self._qfrc_bias,
+                            self._ee_pos, self._ee_xmat, self.qpos_index, self.qvel_index, self.goal_pos,
+                            self.goal_ori, self._gains, self.initial_joint, torques, self._scratch):
+            torques = self._pseudo_inverse_torques()
         return torques
 
     def _jacobian_and_mass(self) -> None:
@@ -150,10 +152,31 @@ class FastStepper:
     def _substep_controls(self) -> None:
         """Arm torques (clipped) and the gripper ramp into ``ctrl``, as robosuite's ``robot.control`` does."""
         self._jacobian_and_mass()
-        _osc_substep(self._jacp, self._jacr, self._mass_full, self._qpos, self._qvel, self._qfrc_bias, self._ee_pos,
-                     self._ee_xmat, self.qpos_index, self.qvel_index, self.goal_pos, self.goal_ori, self._gains,
-                     self.initial_joint, self._torques, self._torque_limits, self.arm_actuators,
-                     self.gripper_action, self._gripper_delta, self._gripper_map, self.gripper_actuators, self._ctrl)
+        if not _osc_substep(self._jacp, self._jacr, self._mass_full, self._qpos, self._qvel, self._qfrc_bias,
+                            self._ee_pos, self._ee_xmat, self.qpos_index, self.qvel_index, self.goal_pos,
+                            self.goal_ori, self._gains, self.initial_joint, self._torques, self._scratch,
+                            self._torque_limits, self.arm_actuators, self.gripper_action, self._gripper_delta,
+                            self._gripper_map, self.gripper_actuators, self._ctrl):
+            _apply_controls(self._pseudo_inverse_torques(), self._torque_limits, self.arm_actuators,
+                            self.gripper_action, self._gripper_delta, self._gripper_map, self.gripper_actuators,
+                            self._ctrl)
+
+    def _pseudo_inverse_torques(self) -> np.ndarray:
+        """robosuite's own route, explicit ``inv`` and ``pinv``, for an arm at a singularity (rare, so numpy).
+
+        Uses the task-space command and posture term the kernel left in ``_scratch``.
+        """
+        dofs = self.qvel_index
+        mass = self._mass_full[np.ix_(dofs, dofs)]
+        jac = np.vstack([self._jacp[:, dofs], self._jacr[:, dofs]])
+        command, posture = self._scratch[:6], self._scratch[6:]
+        minv = np.linalg.inv(mass)
+        lam_full = np.linalg.pinv(jac @ minv @ jac.T)
+        lam_pos = np.linalg.pinv(jac[:3] @ minv @ jac[:3].T)
+        lam_ori = np.linalg.pinv(jac[3:] @ minv @ jac[3:].T)
+        nullspace = np.eye(len(dofs)) - minv @ jac.T @ lam_full @ jac
+        wrench = np.concatenate([lam_pos @ command[:3], lam_ori @ command[3:]])
+        return jac.T @ wrench + self._qfrc_bias[dofs] + nullspace.T @ (mass @ posture)
 
     # ------------------------------------------------------------------ bookkeeping
     def _after_step(self) -> None:
@@ -173,18 +196,23 @@ class FastStepper:
 
 # ---------------------------------------------------------------------- numba kernels
 # One call per substep instead of ~40 small numpy calls: at 7 x 7 the numpy call overhead, not the
-# arithmetic, is what costs (about 0.4 ms per substep in numpy vs a few microseconds here).
+# arithmetic, is what costs (about 0.4 ms per substep in numpy vs tens of microseconds here). Plain loops,
+# no numba BLAS/LAPACK bindings: those would add ~10 s to the one-off compile.
 
 
 @numba.njit(cache=True)
 def _osc_torques(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, qpos_index, qvel_index,
-                 goal_pos, goal_ori, gains, initial_joint, torques):
+                 goal_pos, goal_ori, gains, initial_joint, torques, scratch):
     """robosuite's ``run_controller`` (fixed impedance, uncoupled pos/ori, nullspace posture), into ``torques``.
 
     ``tau = J^T [L_pos F; L_ori T] + bias + N^T M x`` with ``L = (J M^-1 J^T)^-1`` (per block),
     ``N = I - M^-1 J^T L_full J`` and ``x = kp_null (q0 - q) - kv_null qdot``. As ``N^T M x = M x -
-    J^T L_full J x``, it needs one solve with ``M`` (Cholesky) and three small SPD solves; robosuite's
-    explicit ``inv``/``pinv`` agree with these to rounding for a non-singular arm (pinv is the fallback).
+    J^T L_full J x``, it needs one Cholesky solve with ``M`` and three small ones; robosuite's explicit
+    ``inv``/``pinv`` agree with these to rounding for a non-singular arm.
+
+    Writes the task-space command ``[F, T]`` and ``x`` to ``scratch[:6]``, ``scratch[6:]`` first. Returns
+    False, with ``torques`` untouched, when a matrix is not numerically positive definite (a singular arm);
+    the caller then takes robosuite's pseudo-inverse route.
     """
     n = qvel_index.shape[0]
     nv = qvel.shape[0]
@@ -200,13 +228,9 @@ def _osc_torques(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, 
     # end-effector twist from the full-width Jacobian, as robosuite's get_site_xvel{p,r}
     twist = np.zeros(6)
     for r in range(3):
-        vp = 0.0
-        vr = 0.0
         for k in range(nv):
-            vp += jacp[r, k] * qvel[k]
-            vr += jacr[r, k] * qvel[k]
-        twist[r] = vp
-        twist[3 + r] = vr
+            twist[r] += jacp[r, k] * qvel[k]
+            twist[3 + r] += jacr[r, k] * qvel[k]
     # orientation error: 0.5 * sum_i current[:, i] x desired[:, i]  (robosuite's orientation_error)
     ori_err = np.zeros(3)
     for i in range(3):
@@ -215,30 +239,50 @@ def _osc_torques(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, 
         ori_err[0] += c1 * d2 - c2 * d1
         ori_err[1] += c2 * d0 - c0 * d2
         ori_err[2] += c0 * d1 - c1 * d0
-    wrench = np.empty(6)
+    command = scratch[:6]
+    posture = scratch[6:]
     for r in range(3):
-        wrench[r] = (goal_pos[r] - ee_pos[r]) * gains[0, r] + (-twist[r]) * gains[1, r]
-        wrench[3 + r] = (0.5 * ori_err[r]) * gains[0, 3 + r] + (-twist[3 + r]) * gains[1, 3 + r]
-
-    minv_jt = _spd_solve(mass, jac.T.copy())  # M^-1 J^T, (n, 6)
-    lam_inv = jac @ minv_jt  # J M^-1 J^T, (6, 6)
-    posture = np.empty(n)
+        command[r] = (goal_pos[r] - ee_pos[r]) * gains[0, r] + (-twist[r]) * gains[1, r]
+        command[3 + r] = (0.5 * ori_err[r]) * gains[0, 3 + r] + (-twist[3 + r]) * gains[1, 3 + r]
     kv_null = np.sqrt(NULLSPACE_KP) * 2.0
     for j in range(n):
         posture[j] = NULLSPACE_KP * (initial_joint[j] - qpos[qpos_index[j]]) - kv_null * qvel[qvel_index[j]]
-    decoupled = np.empty((6, 1))
-    decoupled[:3, 0] = _spd_solve(lam_inv[:3, :3].copy(), wrench[:3].copy().reshape(3, 1))[:, 0]
-    decoupled[3:, 0] = _spd_solve(lam_inv[3:, 3:].copy(), wrench[3:].copy().reshape(3, 1))[:, 0]
-    projected = _spd_solve(lam_inv, (jac @ posture).reshape(6, 1))  # L_full J x
-    out = jac.T @ (decoupled - projected)
-    mx = mass @ posture
+
+    minv_jt = jac.T.copy()  # becomes M^-1 J^T, (n, 6)
+    if not _cholesky_solve(mass, minv_jt):
+        return False
+    lam_inv = np.zeros((6, 6))  # J M^-1 J^T
+    for r in range(6):
+        for c in range(6):
+            for k in range(n):
+                lam_inv[r, c] += jac[r, k] * minv_jt[k, c]
+    wrench = np.empty((6, 1))  # [L_pos F; L_ori T] - L_full J x
+    pos_part = command[:3].copy().reshape(3, 1)
+    ori_part = command[3:].copy().reshape(3, 1)
+    projected = np.zeros((6, 1))
+    for r in range(6):
+        for k in range(n):
+            projected[r, 0] += jac[r, k] * posture[k]
+    if not (_cholesky_solve(lam_inv[:3, :3].copy(), pos_part) and _cholesky_solve(lam_inv[3:, 3:].copy(), ori_part)
+            and _cholesky_solve(lam_inv, projected)):
+        return False
+    for r in range(3):
+        wrench[r, 0] = pos_part[r, 0] - projected[r, 0]
+        wrench[3 + r, 0] = ori_part[r, 0] - projected[3 + r, 0]
     for j in range(n):
-        torques[j] = out[j, 0] + qfrc_bias[qvel_index[j]] + mx[j]
+        acc = 0.0
+        for r in range(6):
+            acc += jac[r, j] * wrench[r, 0]
+        mx = 0.0
+        for k in range(n):
+            mx += mass[j, k] * posture[k]
+        torques[j] = acc + qfrc_bias[qvel_index[j]] + mx
+    return True
 
 
 @numba.njit(cache=True)
-def _spd_solve(a, b):
-    """``a^-1 b`` for a symmetric positive-definite ``a`` by Cholesky; pseudo-inverse if it is not (singular arm)."""
+def _cholesky_solve(a, b):
+    """Overwrite ``b`` with ``a^-1 b`` for symmetric positive-definite ``a``; False (``b`` unusable) if it is not."""
     n = a.shape[0]
     low = np.zeros((n, n))
     for i in range(n):
@@ -247,39 +291,47 @@ def _spd_solve(a, b):
             for k in range(j):
                 acc -= low[i, k] * low[j, k]
             if i == j:
-                if not acc > 0.0:
-                    return np.linalg.pinv(a) @ b
+                if not acc > 1e-300:
+                    return False
                 low[i, i] = np.sqrt(acc)
             else:
                 low[i, j] = acc / low[j, j]
-    x = b.copy()
-    m = b.shape[1]
-    for c in range(m):
+    for c in range(b.shape[1]):
         for i in range(n):  # L y = b
-            acc = x[i, c]
+            acc = b[i, c]
             for k in range(i):
-                acc -= low[i, k] * x[k, c]
-            x[i, c] = acc / low[i, i]
+                acc -= low[i, k] * b[k, c]
+            b[i, c] = acc / low[i, i]
         for i in range(n - 1, -1, -1):  # L^T x = y
-            acc = x[i, c]
+            acc = b[i, c]
             for k in range(i + 1, n):
-                acc -= low[k, i] * x[k, c]
-            x[i, c] = acc / low[i, i]
-    return x
+                acc -= low[k, i] * b[k, c]
+            b[i, c] = acc / low[i, i]
+    return True
 
 
 @numba.njit(cache=True)
-def _osc_substep(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, qpos_index, qvel_index, goal_pos,
-                 goal_ori, gains, initial_joint, torques, torque_limits, arm_actuators, gripper_action,
-                 gripper_delta, gripper_map, gripper_actuators, ctrl):
-    """One substep of robosuite's ``robot.control``: OSC torques, clipped into ``ctrl``, and the gripper ramp."""
-    _osc_torques(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, qpos_index, qvel_index, goal_pos,
-                 goal_ori, gains, initial_joint, torques)
+def _apply_controls(torques, torque_limits, arm_actuators, gripper_action, gripper_delta, gripper_map,
+                    gripper_actuators, ctrl):
+    """The tail of robosuite's ``robot.control``: clipped arm torques and the stateful gripper ramp into ``ctrl``."""
     for j in range(arm_actuators.shape[0]):
         ctrl[arm_actuators[j]] = min(max(torques[j], torque_limits[0, j]), torque_limits[1, j])
     for g in range(gripper_actuators.shape[0]):
         gripper_action[g] = min(max(gripper_action[g] + gripper_delta[g], -1.0), 1.0)
         ctrl[gripper_actuators[g]] = gripper_map[0, g] + gripper_map[1, g] * gripper_action[g]
+
+
+@numba.njit(cache=True)
+def _osc_substep(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, qpos_index, qvel_index, goal_pos,
+                 goal_ori, gains, initial_joint, torques, scratch, torque_limits, arm_actuators, gripper_action,
+                 gripper_delta, gripper_map, gripper_actuators, ctrl):
+    """One substep of robosuite's ``robot.control`` in one call; False (nothing written) on a singular arm."""
+    if not _osc_torques(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, qpos_index, qvel_index,
+                        goal_pos, goal_ori, gains, initial_joint, torques, scratch):
+        return False
+    _apply_controls(torques, torque_limits, arm_actuators, gripper_action, gripper_delta, gripper_map,
+                    gripper_actuators, ctrl)
+    return True
 
 
 def _check_supported(robot, controller, model: mujoco.MjModel) -> None:
