@@ -215,7 +215,6 @@ def _osc_torques(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, 
     the caller then takes robosuite's pseudo-inverse route.
     """
     n = qvel_index.shape[0]
-    nv = qvel.shape[0]
     jac = np.empty((6, n))
     mass = np.empty((n, n))
     for j in range(n):
@@ -225,6 +224,47 @@ def _osc_torques(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, 
             jac[3 + r, j] = jacr[r, dof]
         for k in range(n):
             mass[j, k] = mass_full[dof, qvel_index[k]]
+    _task_space_command(jacp, jacr, qpos, qvel, ee_pos, ee_xmat, qpos_index, qvel_index, goal_pos, goal_ori,
+                        gains, initial_joint, scratch)
+    posture = scratch[6:]
+
+    minv_jt = jac.T.copy()  # becomes M^-1 J^T, (n, 6)
+    if not _cholesky_solve(mass, minv_jt):
+        return False
+    lam_inv = np.zeros((6, 6))  # J M^-1 J^T
+    for r in range(6):
+        for c in range(6):
+            for k in range(n):
+                lam_inv[r, c] += jac[r, k] * minv_jt[k, c]
+    pos_part = scratch[:3].copy().reshape(3, 1)
+    ori_part = scratch[3:6].copy().reshape(3, 1)
+    projected = np.zeros((6, 1))  # J x, becomes L_full J x
+    for r in range(6):
+        for k in range(n):
+            projected[r, 0] += jac[r, k] * posture[k]
+    if not (_cholesky_solve(lam_inv[:3, :3].copy(), pos_part) and _cholesky_solve(lam_inv[3:, 3:].copy(), ori_part)
+            and _cholesky_solve(lam_inv, projected)):
+        return False
+    wrench = np.empty(6)  # [L_pos F; L_ori T] - L_full J x
+    for r in range(3):
+        wrench[r] = pos_part[r, 0] - projected[r, 0]
+        wrench[3 + r] = ori_part[r, 0] - projected[3 + r, 0]
+    for j in range(n):
+        acc = 0.0
+        for r in range(6):
+            acc += jac[r, j] * wrench[r]
+        mx = 0.0
+        for k in range(n):
+            mx += mass[j, k] * posture[k]
+        torques[j] = acc + qfrc_bias[qvel_index[j]] + mx
+    return True
+
+
+@numba.njit(cache=True)
+def _task_space_command(jacp, jacr, qpos, qvel, ee_pos, ee_xmat, qpos_index, qvel_index, goal_pos, goal_ori,
+                        gains, initial_joint, out):
+    """``out[:6]``: the PD wrench command ``[F, T]`` of robosuite's OSC; ``out[6:]``: the posture term ``x``."""
+    nv = qvel.shape[0]
     # end-effector twist from the full-width Jacobian, as robosuite's get_site_xvel{p,r}
     twist = np.zeros(6)
     for r in range(3):
@@ -239,45 +279,12 @@ def _osc_torques(jacp, jacr, mass_full, qpos, qvel, qfrc_bias, ee_pos, ee_xmat, 
         ori_err[0] += c1 * d2 - c2 * d1
         ori_err[1] += c2 * d0 - c0 * d2
         ori_err[2] += c0 * d1 - c1 * d0
-    command = scratch[:6]
-    posture = scratch[6:]
     for r in range(3):
-        command[r] = (goal_pos[r] - ee_pos[r]) * gains[0, r] + (-twist[r]) * gains[1, r]
-        command[3 + r] = (0.5 * ori_err[r]) * gains[0, 3 + r] + (-twist[3 + r]) * gains[1, 3 + r]
+        out[r] = (goal_pos[r] - ee_pos[r]) * gains[0, r] + (-twist[r]) * gains[1, r]
+        out[3 + r] = (0.5 * ori_err[r]) * gains[0, 3 + r] + (-twist[3 + r]) * gains[1, 3 + r]
     kv_null = np.sqrt(NULLSPACE_KP) * 2.0
-    for j in range(n):
-        posture[j] = NULLSPACE_KP * (initial_joint[j] - qpos[qpos_index[j]]) - kv_null * qvel[qvel_index[j]]
-
-    minv_jt = jac.T.copy()  # becomes M^-1 J^T, (n, 6)
-    if not _cholesky_solve(mass, minv_jt):
-        return False
-    lam_inv = np.zeros((6, 6))  # J M^-1 J^T
-    for r in range(6):
-        for c in range(6):
-            for k in range(n):
-                lam_inv[r, c] += jac[r, k] * minv_jt[k, c]
-    wrench = np.empty((6, 1))  # [L_pos F; L_ori T] - L_full J x
-    pos_part = command[:3].copy().reshape(3, 1)
-    ori_part = command[3:].copy().reshape(3, 1)
-    projected = np.zeros((6, 1))
-    for r in range(6):
-        for k in range(n):
-            projected[r, 0] += jac[r, k] * posture[k]
-    if not (_cholesky_solve(lam_inv[:3, :3].copy(), pos_part) and _cholesky_solve(lam_inv[3:, 3:].copy(), ori_part)
-            and _cholesky_solve(lam_inv, projected)):
-        return False
-    for r in range(3):
-        wrench[r, 0] = pos_part[r, 0] - projected[r, 0]
-        wrench[3 + r, 0] = ori_part[r, 0] - projected[3 + r, 0]
-    for j in range(n):
-        acc = 0.0
-        for r in range(6):
-            acc += jac[r, j] * wrench[r, 0]
-        mx = 0.0
-        for k in range(n):
-            mx += mass[j, k] * posture[k]
-        torques[j] = acc + qfrc_bias[qvel_index[j]] + mx
-    return True
+    for j in range(qvel_index.shape[0]):
+        out[6 + j] = NULLSPACE_KP * (initial_joint[j] - qpos[qpos_index[j]]) - kv_null * qvel[qvel_index[j]]
 
 
 @numba.njit(cache=True)
