@@ -156,12 +156,18 @@ def test_surface_points_are_deterministic_and_area_weighted(model, robot):
         robot.kinematics.link_names.index("gripper0_leftfinger")]
 
 
-def test_eef_spheres_follow_the_hand(robot):
-    q = torch.tensor(HOME)
-    centres = robot.sphere_centres(q)
-    eef = robot.kinematics(q).eef_position
+def test_eef_spheres_cover_the_hand_and_fingers(model, robot):
+    arm, _ = _random_configs(model, (1,), seed=2)
+    fk = robot.kinematics(torch.tensor(arm[0]))  # fingers open
+    centres = robot.spheres.world(fk).numpy()
     assert centres.shape == (3, 3)
-    assert torch.linalg.vector_norm(centres - eef, dim=-1).max() < 0.15
+    for name in ("gripper0_right_gripper", "gripper0_leftfinger", "gripper0_finger_joint1_tip",
+                 "gripper0_rightfinger", "gripper0_finger_joint2_tip"):
+        link = robot.kinematics.link_names.index(name)
+        vertices = body_collision_mesh(model, robot.kinematics.link_body_ids[link]).vertices
+        world = vertices @ fk.rotations[link].numpy().T + fk.positions[link].numpy()
+        outside = np.linalg.norm(world[:, None] - centres[None], axis=-1) - robot.spheres.radii
+        assert outside.min(axis=1).max() < 1e-3, name
 
 
 # ---------------------------------------------------------------------------------------------- SDF

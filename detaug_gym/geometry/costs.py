@@ -75,26 +75,23 @@ def surface_hinge_cost(fk: KinematicsResult, surface: RobotSurfacePoints, sdf: O
     if sdf.empty:
         return (total + 0.0 * pos.sum(dim=(-2, -1))).view(batch)
     near = _near_links(rot, pos, surface, sdf, margin)  # (N, G) bool
-    owners, queries = [], []
-    for g, (link, local) in enumerate(surface.groups(rot.dtype, rot.device)):
-        idx = torch.nonzero(near[:, g]).view(-1)
-        if idx.numel() == 0:
-            continue
-        r, p = rot[idx, link], pos[idx, link]  # (M, 3, 3), (M, 3)
-        world = (r[:, None, :, 0] * local[:, 0:1] + r[:, None, :, 1] * local[:, 1:2]
-                 + r[:, None, :, 2] * local[:, 2:3] + p[:, None, :])  # (M, n, 3)
-        owners.append(idx)
-        queries.append(world)
-    if not queries:
+    pair_config, pair_group = torch.nonzero(near, as_tuple=True)  # (M,) each: the (config, link) pairs to place
+    if pair_config.numel() == 0:
         return (total + 0.0 * pos.sum(dim=(-2, -1))).view(batch)
-    values = sdf(torch.cat([q.reshape(-1, 3) for q in queries]))
-    start = 0
-    for idx, world in zip(owners, queries):
-        count = world.shape[0] * world.shape[1]
-        hinge = torch.relu(margin - values[start : start + count]).view(world.shape[0], world.shape[1]).sum(-1)
-        total = total.index_add(0, idx, hinge)
-        start += count
-    return total.view(batch)
+    # Flatten every point of every near pair into one batch of Q queries (no per-link loop, no padding).
+    counts, starts = (torch.as_tensor(x, device=rot.device) for x in (surface.group_counts, surface.group_starts))
+    pair_counts = counts[pair_group]
+    point_pair = torch.repeat_interleave(torch.arange(len(pair_group), device=rot.device), pair_counts)  # (Q,)
+    first = torch.cumsum(pair_counts, 0) - pair_counts  # position of each pair's first query
+    point_index = starts[pair_group][point_pair] + torch.arange(len(point_pair), device=rot.device) - first[point_pair]
+    link = torch.as_tensor(surface.group_links, device=rot.device)[pair_group]
+    pose_index = (pair_config * num_links + link)[point_pair]  # (Q,) into the flattened (N * L) poses
+    r = rot.reshape(-1, 3, 3).index_select(0, pose_index)  # (Q, 3, 3); index_select beats fancy indexing
+    local = surface.local_tensor(rot.dtype, rot.device).index_select(0, point_index)  # (Q, 3)
+    world = (r[:, :, 0] * local[:, 0:1] + r[:, :, 1] * local[:, 1:2] + r[:, :, 2] * local[:, 2:3]
+             + pos.reshape(-1, 3).index_select(0, pose_index))
+    hinge = torch.relu(margin - sdf(world))
+    return total.index_add(0, pair_config[point_pair], hinge).view(batch)
 
 
 def _near_links(rot: torch.Tensor, pos: torch.Tensor, surface: RobotSurfacePoints, sdf: ObstacleSDF,

@@ -178,8 +178,10 @@ class PandaKinematics:
         poss: list[torch.Tensor] = []
         for body, bc in zip(self._bodies, c["bodies"]):
             parent_r, parent_p = (base_r, base_p) if body.parent < 0 else (rots[body.parent], poss[body.parent])
-            pos = parent_p + _matvec(parent_r, bc["pos"])
-            if "fused" in bc:  # one hinge through the body origin: rot = parent @ offset @ Rodrigues
+            pos = parent_p if bc["zero_offset"] else parent_p + _matvec(parent_r, bc["pos"])
+            if bc["rigid_same_axes"]:  # no joint and no rotation offset: the parent's orientation
+                rot = parent_r
+            elif "fused" in bc:  # one hinge through the body origin: rot = parent @ offset @ Rodrigues
                 a, b, k2 = bc["fused"]
                 angle = q[body.joints[0].slot] - body.joints[0].ref
                 rot = _matmul(parent_r, a + torch.sin(angle) * b + (1.0 - torch.cos(angle)) * k2)
@@ -209,7 +211,9 @@ class PandaKinematics:
                 joints = [{"anchor": t(j.anchor), "axis": t(j.axis), "cross": t(_cross_matrix(j.axis)),
                            "cross2": t(_cross_matrix(j.axis) @ _cross_matrix(j.axis)), "eye": t(np.eye(3))}
                           for j in body.joints]
-                bodies.append({"rot": t(body.rot), "pos": t(body.pos), "joints": joints})
+                bodies.append({"rot": t(body.rot), "pos": t(body.pos), "joints": joints,
+                               "zero_offset": not np.any(body.pos),
+                               "rigid_same_axes": not body.joints and np.array_equal(body.rot, np.eye(3))})
                 if len(body.joints) == 1 and body.joints[0].hinge and not np.any(body.joints[0].anchor):
                     k = _cross_matrix(body.joints[0].axis)
                     bodies[-1]["fused"] = (t(body.rot), t(body.rot @ k), t(body.rot @ k @ k))
@@ -233,13 +237,16 @@ def _apply_joint(rot: torch.Tensor, pos: torch.Tensor, angle: torch.Tensor, hing
 
 
 def _matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """``a @ b`` per batch element for batch-last stacks ``(3, 3, N)`` (N may be 1 and broadcast)."""
-    return a[:, 0:1] * b[0:1] + a[:, 1:2] * b[1:2] + a[:, 2:3] * b[2:3]
+    """``a @ b`` per batch element for batch-last stacks ``(3, 3, N)`` (N may be 1 and broadcast).
+
+    One broadcast product and one reduction: the FK is bound by per-op overhead, not arithmetic.
+    """
+    return (a[:, :, None] * b[None]).sum(1)
 
 
 def _matvec(a: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     """``a @ v`` per batch element for ``a`` (3, 3, N) and ``v`` (3, N), batch last."""
-    return a[:, 0] * v[0:1] + a[:, 1] * v[1:2] + a[:, 2] * v[2:3]
+    return (a * v[None]).sum(1)
 
 
 def _body_joints(model: mujoco.MjModel, body: int, slots: dict[int, int]) -> tuple[_Joint, ...]:

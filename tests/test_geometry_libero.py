@@ -1,0 +1,69 @@
+"""The shared geometry on a real SafeLIBERO scene (one scene build, ~10-20 s)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from detaug_gym.geometry import RobotGeometry, obstacle_sdf, plan_collision_cost
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def libero():
+    env = gym.make("SafeLibero-Spatial-L2-v0", task=0).unwrapped
+    obs, info = env.reset(seed=0)
+    yield env, obs, info
+    env.close()
+
+
+def test_fk_of_the_scene_model_matches_mujoco(libero):
+    env, _, _ = libero
+    model, scene = env.scene.model, env.scene
+    robot = RobotGeometry.from_model(model)
+    data = mujoco.MjData(model)
+    data.qpos[:] = scene.data.qpos
+    rng = np.random.default_rng(0)
+    ranges = model.jnt_range[[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"robot0_joint{i}")
+                              for i in range(1, 8)]]
+    for k in range(4):
+        if k:  # the reset state first, then random arm configurations
+            data.qpos[scene.arm_qpos] = rng.uniform(ranges[:, 0], ranges[:, 1])
+        mujoco.mj_kinematics(model, data)
+        out = robot.kinematics(torch.tensor(data.qpos[scene.arm_qpos]), torch.tensor(data.qpos[scene.gripper_qpos]))
+        ids = robot.kinematics.link_body_ids
+        np.testing.assert_allclose(out.positions.numpy(), data.xpos[ids], atol=1e-9)
+        np.testing.assert_allclose(out.rotations.numpy(), data.xmat[ids].reshape(-1, 3, 3), atol=1e-9)
+        np.testing.assert_allclose(out.eef_position.numpy(), data.site_xpos[scene.eef_site], atol=1e-9)
+
+
+def test_default_panda_aligned_to_the_observation_matches_the_scene(libero):
+    env, obs, _ = libero
+    scene_robot = RobotGeometry.from_model(env.scene.model)
+    aligned = RobotGeometry.panda().aligned_to(obs)
+    q = torch.tensor(obs["robot_joint_pos"], dtype=torch.float64) + torch.linspace(-0.3, 0.3, 7, dtype=torch.float64)
+    fingers = torch.tensor(obs["gripper_qpos"], dtype=torch.float64)
+    torch.testing.assert_close(aligned.surface_points(q, fingers), scene_robot.surface_points(q, fingers),
+                               atol=2e-4, rtol=0)  # float32 observations limit the base estimate
+
+
+def test_obstacle_sdf_and_costs_on_the_observation(libero):
+    env, obs, info = libero
+    assert obs["obstacle_mask"][0] == 1.0
+    sdf = obstacle_sdf(obs)
+    on_surface = sdf(torch.tensor(obs["obstacle_points"], dtype=torch.float64))
+    assert on_surface.max() < sdf.grid.spacing  # on the hull (or inside it, from concave parts)
+    assert np.all(sdf.exact(obs["obstacle_points"]) < 1e-9)
+    centroid = torch.tensor(obs["obstacle_points"].mean(axis=0), dtype=torch.float64)
+    assert sdf(centroid) < 0
+    robot = RobotGeometry.from_model(env.scene.model)
+    q = torch.tensor(obs["robot_joint_pos"], dtype=torch.float64)
+    nearest = sdf(robot.surface_points(q, torch.tensor(obs["gripper_qpos"], dtype=torch.float64))).min().item()
+    assert abs(nearest - info["min_clearance"]) < 0.05  # sampled robot surface vs the env's exact clearance
+    plans = q + torch.zeros(32, 50, 7, dtype=torch.float64)
+    cost = plan_collision_cost(plans, obs)
+    assert cost.shape == (32,) and torch.all(cost == 0)  # the start pose is clear of the obstacle
