@@ -34,7 +34,7 @@ def measure(suite: str, level: str, seeds: int) -> list[dict]:
             _, info = env.reset(seed=seed, options={"task": task})
             u = env.unwrapped
             placement = u.episode.placement
-            problem = u._placement_problem(u.scene, np.random.default_rng(0))
+            problem = placement.problem
             segments = {name: (a, b) for name, a, b in problem.path_segments()}
             a, b = segments.get(placement.segment, (problem.pick.center, problem.place.center))
             rows.append({

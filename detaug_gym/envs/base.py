@@ -156,7 +156,8 @@ class ObstacleManipulationEnv(gym.Env):
             return None
         if self._renderer is None:
             self._renderer = mujoco.Renderer(self.scene.model, 256, 256)
-        camera = "agentview" if mujoco.mj_name2id(self.scene.model, mujoco.mjtObj.mjOBJ_CAMERA, "agentview") >= 0 else -1
+        has_agentview = mujoco.mj_name2id(self.scene.model, mujoco.mjtObj.mjOBJ_CAMERA, "agentview") >= 0
+        camera = "agentview" if has_agentview else -1
         self._renderer.update_scene(self.scene.data, camera=camera)
         return self._renderer.render()
 

@@ -87,6 +87,7 @@ class Placement:
     relaxed: int = 0  # how many times the constraints had to be relaxed to find a spot
     segment: str = ""  # Level 2: "carry" or "approach"
     footprint: Footprint = field(default=None)  # type: ignore[assignment]
+    problem: PlacementProblem | None = field(default=None, repr=False)  # the scene it was placed in
 
 
 def footprint_gap(a: Footprint, b: Footprint) -> float:
@@ -157,10 +158,10 @@ def place_obstacle(
                 xy = _sample_centre(problem, half_extents, level, yaw, a, b, fraction, lateral, rng)
                 fp = _obstacle_footprint(xy, half_extents, yaw, pedestal)
                 if _valid(problem, fp, level, scale):
-                    return Placement(xy, yaw, pedestal, level, relaxed, name, fp)
+                    return Placement(xy, yaw, pedestal, level, relaxed, name, fp, problem)
                 score = _least_gap(problem, fp)
                 if score > best_score:
-                    best, best_score = Placement(xy, yaw, pedestal, level, len(rounds), name, fp), score
+                    best, best_score = Placement(xy, yaw, pedestal, level, len(rounds), name, fp, problem), score
     # Scenes too cluttered for any valid spot (rare): the least-overlapping sample, marked fully relaxed.
     return best
 
