@@ -92,6 +92,32 @@ def test_substep_controls_match_robot_control(env):
         np.testing.assert_array_equal(fast.gripper_action, robot.gripper.current_action)
 
 
+def test_split_pipeline_is_bitwise_robosuites_physics(env):
+    """``mj_step1`` + controls + ``mj_step2`` equals robosuite's ``mj_forward`` (x2) + controls + ``mj_step``."""
+    scene = env.scene
+    m, d = scene.model, scene.data
+    env.reset(seed=1)
+    start, warmstart = env.get_state(), d.qacc_warmstart.copy()
+    torques = np.random.default_rng(3).uniform(-20.0, 20.0, (200, 7))
+    finals = []
+    for split in (False, True):
+        scene.set_state(start)
+        d.qacc_warmstart[:] = warmstart
+        mujoco.mj_forward(m, d)
+        for tau in torques:
+            if split:
+                mujoco.mj_step1(m, d)
+                d.ctrl[:7] = tau
+                mujoco.mj_step2(m, d)
+            else:
+                mujoco.mj_forward(m, d)
+                mujoco.mj_forward(m, d)
+                d.ctrl[:7] = tau
+                mujoco.mj_step(m, d)
+        finals.append(env.get_state())
+    np.testing.assert_array_equal(finals[0], finals[1])
+
+
 def test_trajectories_match_stock_env(env):
     """Same init state and seed, 200 steps of random actions: every state matches the stock controller's."""
     scene = env.scene
