@@ -62,11 +62,11 @@ class TrainConfig:
     """Demonstration HDF5 (data/demo_<i>/{actions, obs/...}, plus label or obstacle_points)."""
     out: str = ""
     """Output folder, e.g. policies/<method>/<suite>/."""
-    steps: int = 12_000
+    steps: int = 8_000
     """Optimiser steps in total (a resumed run continues up to this number)."""
     batch_size: int = 128
     """Windows per step."""
-    lr: float = 3e-4
+    lr: float = 5e-4
     """Peak AdamW learning rate."""
     weight_decay: float = 1e-4
     """AdamW weight decay."""
@@ -102,8 +102,9 @@ class TrainConfig:
     """Steps between rows of train_log.csv."""
     seed: int = 0
     """Seed of initialisation and batch sampling."""
-    threads: int = 2
-    """torch CPU threads."""
+    threads: int = 1
+    """torch CPU threads. One is faster than two whenever anything else runs on this 2-core machine
+    (see docs/models.md); train two policies side by side instead."""
     progress: bool = True
     """Show a progress bar."""
     restart: bool = False
