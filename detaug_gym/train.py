@@ -225,87 +225,111 @@ def resume_state(cfg: TrainConfig) -> dict | None:
 
 
 # ---------------------------------------------------------------------------------------------- training
+@dataclass
+class Run:
+    """Everything a training run holds, so that it can be saved and resumed as one."""
+
+    cfg: TrainConfig
+    data: WindowDataset
+    network: FlowNetwork
+    optimizer: torch.optim.Optimizer
+    schedule: torch.optim.lr_scheduler.LambdaLR
+    ema: EMA
+    generator: torch.Generator
+    step: int = 0
+    elapsed: float = 0.0
+    losses: list = dataclasses.field(default_factory=list)
+
+    @classmethod
+    def start(cls, cfg: TrainConfig) -> Run:
+        """Build data, network and optimiser for ``cfg``; resume from ``cfg.out`` when it holds this run."""
+        init = load_checkpoint(cfg.init_from) if cfg.init_from else None
+        data = load_data(cfg, init)
+        network = build_network(cfg, data, init)
+        trainable = network.adapter_parameters() if cfg.adapter_only else list(network.parameters())
+        trainable_ids = {id(p) for p in trainable}
+        for p in network.parameters():
+            p.requires_grad_(id(p) in trainable_ids)
+        optimizer = torch.optim.AdamW(trainable, lr=cfg.lr, weight_decay=cfg.weight_decay)
+        schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, cfg.warmup_steps, cfg.steps))
+        run = cls(cfg, data, network, optimizer, schedule, EMA(network, cfg.ema_decay),
+                  torch.Generator().manual_seed(cfg.seed))
+        state = resume_state(cfg)
+        if state is not None:
+            run.restore(state)
+            print(f"resuming {cfg.out} at step {run.step}/{cfg.steps}")
+        print(f"{cfg.method}: {len(data)} windows from {data.num_demos} demos, "
+              f"{network.num_parameters() / 1e6:.2f}M parameters ({sum(p.numel() for p in trainable) / 1e6:.2f}M "
+              f"trained), label dim {data.label_dim}")
+        return run
+
+    def restore(self, state: dict) -> None:
+        self.network.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.schedule.load_state_dict(state["schedule"])
+        self.ema.state, self.ema.updates = state["ema"], state["ema_updates"]
+        self.generator.set_state(state["generator"])
+        self.step, self.elapsed, self.losses = state["step"], state["elapsed"], state["recent_losses"]
+
+    def save(self, final: bool = False) -> dict:
+        """Write the checkpoint folder (EMA weights) and the resume state; return the summary."""
+        cfg, out = self.cfg, Path(self.cfg.out)
+        summary = {"steps": self.step, "final_loss": float(np.mean(self.losses[-100:])) if self.losses else None,
+                   "wall_time_s": round(self.elapsed, 1), "step_time_s": round(self.elapsed / max(1, self.step), 4),
+                   "parameters": self.network.num_parameters(), "finished": final}
+        save_checkpoint(out, method=cfg.method, network=self.network, ema_state=self.ema.state,
+                        layout=self.data.layout, obs_keys=OBS_KEYS, normalizers=self.data.normalizers,
+                        labels=LabelSupport(*self.data.label_bank()),
+                        n_points=cfg.n_points if cfg.method == "demogen" else 0,
+                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary})
+        torch_save(out / TRAIN_STATE, {
+            "config": dataclasses.asdict(cfg), "model": self.network.state_dict(),
+            "optimizer": self.optimizer.state_dict(), "schedule": self.schedule.state_dict(),
+            "ema": self.ema.state, "ema_updates": self.ema.updates, "generator": self.generator.get_state(),
+            "step": self.step, "elapsed": self.elapsed, "recent_losses": self.losses[-100:]})
+        return summary
+
+
 def train(cfg: TrainConfig) -> dict:
     """Train (or resume) and return a summary: steps, final loss, wall time, step time, parameters."""
     check_config(cfg)
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
+    run = Run.start(cfg)
+    known = torch.zeros(1, cfg.horizon, run.data.layout.plan_dim, dtype=torch.bool)
+    known[:, 0, run.data.layout.state_slice] = True  # the current state is inpainted, never predicted
     out = Path(cfg.out)
-    init = load_checkpoint(cfg.init_from) if cfg.init_from else None
-    data = load_data(cfg, init)
-    network = build_network(cfg, data, init)
-    trainable = network.adapter_parameters() if cfg.adapter_only else list(network.parameters())
-    for p in network.parameters():
-        p.requires_grad_(False)
-    for p in trainable:
-        p.requires_grad_(True)
-    optimizer = torch.optim.AdamW(trainable, lr=cfg.lr, weight_decay=cfg.weight_decay)
-    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: lr_factor(s, cfg.warmup_steps, cfg.steps))
-    ema = EMA(network, cfg.ema_decay)
-    generator = torch.Generator().manual_seed(cfg.seed)
-    step, elapsed, losses = 0, 0.0, []
-    state = resume_state(cfg)
-    if state is not None:
-        network.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        schedule.load_state_dict(state["schedule"])
-        ema.state, ema.updates = state["ema"], state["ema_updates"]
-        generator.set_state(state["generator"])
-        step, elapsed, losses = state["step"], state["elapsed"], state["recent_losses"]
-        print(f"resuming {out} at step {step}/{cfg.steps}")
-    n_params = network.num_parameters()
-    print(f"{cfg.method}: {len(data)} windows from {data.num_demos} demos, {n_params / 1e6:.2f}M parameters "
-          f"({sum(p.numel() for p in trainable) / 1e6:.2f}M trained), label dim {data.label_dim}")
-
-    known = torch.zeros(1, cfg.horizon, data.layout.plan_dim, dtype=torch.bool)
-    known[:, 0, data.layout.state_slice] = True  # the current state is inpainted, never predicted
-
-    def checkpoint(final: bool = False) -> dict:
-        summary = {"steps": step, "final_loss": float(np.mean(losses[-100:])) if losses else None,
-                   "wall_time_s": round(elapsed, 1), "step_time_s": round(elapsed / max(1, step), 4),
-                   "parameters": n_params, "finished": final}
-        bank, task = data.label_bank()
-        save_checkpoint(out, method=cfg.method, network=network, ema_state=ema.state, layout=data.layout,
-                        obs_keys=OBS_KEYS, normalizers=data.normalizers, labels=LabelSupport(bank, task),
-                        n_points=cfg.n_points if cfg.method == "demogen" else 0,
-                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary})
-        torch_save(out / TRAIN_STATE, {
-            "config": dataclasses.asdict(cfg), "model": network.state_dict(), "optimizer": optimizer.state_dict(),
-            "schedule": schedule.state_dict(), "ema": ema.state, "ema_updates": ema.updates,
-            "generator": generator.get_state(), "step": step, "elapsed": elapsed, "recent_losses": losses[-100:]})
-        return summary
-
     out.mkdir(parents=True, exist_ok=True)
     log = open(out / "train_log.csv", "a", newline="")  # noqa: SIM115  (closed in finally)
     writer = csv.writer(log)
     if log.tell() == 0:
         writer.writerow(["step", "loss", "lr", "elapsed_s"])
-    bar = tqdm(total=cfg.steps, initial=step, disable=not cfg.progress, desc=f"train {cfg.method}", unit="step")
+    bar = tqdm(total=cfg.steps, initial=run.step, disable=not cfg.progress, desc=f"train {cfg.method}", unit="step")
     try:
-        while step < cfg.steps:
+        while run.step < cfg.steps:
             tic = time.perf_counter()
-            loss = train_step(network, data, optimizer, cfg, known, generator)
-            schedule.step()
-            ema.update(network)
-            elapsed += time.perf_counter() - tic
-            step += 1
-            losses.append(loss)
+            run.losses.append(train_step(run.network, run.data, run.optimizer, cfg, known, run.generator))
+            run.schedule.step()
+            run.ema.update(run.network)
+            run.elapsed += time.perf_counter() - tic
+            run.step += 1
             bar.update()
-            if step % cfg.log_every == 0 or step == cfg.steps:
-                mean = float(np.mean(losses[-cfg.log_every:]))
-                bar.set_postfix(loss=f"{mean:.4f}", lr=f"{schedule.get_last_lr()[0]:.1e}")
-                writer.writerow([step, f"{mean:.6f}", f"{schedule.get_last_lr()[0]:.3e}", f"{elapsed:.1f}"])
+            if run.step % cfg.log_every == 0 or run.step == cfg.steps:
+                mean, lr = float(np.mean(run.losses[-cfg.log_every:])), run.schedule.get_last_lr()[0]
+                bar.set_postfix(loss=f"{mean:.4f}", lr=f"{lr:.1e}")
+                writer.writerow([run.step, f"{mean:.6f}", f"{lr:.3e}", f"{run.elapsed:.1f}"])
                 log.flush()
-            if step % cfg.checkpoint_every == 0 and step < cfg.steps:
-                checkpoint()
+            if run.step % cfg.checkpoint_every == 0 and run.step < cfg.steps:
+                run.save()
     except KeyboardInterrupt:
         bar.close()
-        checkpoint()
-        raise SystemExit(f"interrupted at step {step}; checkpoint saved. Rerun the same command to resume.") from None
+        run.save()
+        raise SystemExit(f"interrupted at step {run.step}; checkpoint saved. Rerun the same command to resume.") \
+            from None
     finally:
         bar.close()
         log.close()
-    summary = checkpoint(final=True)
+    summary = run.save(final=True)
     print(f"done: {summary}")
     return summary
 

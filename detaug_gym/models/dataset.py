@@ -138,26 +138,47 @@ def _demo_order(name: str) -> tuple[int, str]:
 
 
 def read_demos(path: str | Path, obs_keys: tuple[str, ...] = OBS_KEYS) -> list[Demo]:
-    """Read every ``data/demo_<i>`` of a demonstration HDF5 (only the keys the policies need)."""
+    """Read every ``data/demo_<i>`` of a demonstration HDF5, keeping the keys the policies need.
+
+    Uses the project's reader :func:`detaug_gym.data.load` (which also maps LIBERO's own files) when it is
+    available, and a plain h5py reader of the same layout otherwise.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no demonstration file at {path}")
+    try:
+        from detaug_gym.data import load
+    except ImportError:
+        raw = _read_h5(path)
+    else:
+        raw = [Demo(d.name, d.actions, d.obs, d.label, d.obstacle_points, dict(d.attrs)) for d in load(path).demos]
+    if not raw:
+        raise ValueError(f"{path} holds no demos")
+    demos = []
+    for d in raw:
+        missing = [k for k in obs_keys if k not in d.obs]
+        if missing:
+            raise ValueError(f"{path}:data/{d.name} lacks obs keys {missing} (the policies read {list(obs_keys)})")
+        label = None if d.label is None else np.asarray(d.label, np.float32).reshape(-1)
+        points = None if d.obstacle_points is None else np.asarray(d.obstacle_points, np.float32).reshape(-1, 3)
+        demos.append(Demo(d.name, np.asarray(d.actions, np.float32), {k: np.asarray(d.obs[k]) for k in obs_keys},
+                          label, points, d.attrs))
+    return demos
+
+
+def _read_h5(path: Path) -> list[Demo]:
     demos = []
     with h5py.File(path, "r") as f:
         if "data" not in f:
             raise ValueError(f"{path} has no 'data' group; expected data/demo_<i>/{{actions, obs/...}}")
         for name in sorted(f["data"].keys(), key=_demo_order):
             g = f["data"][name]
-            missing = [k for k in obs_keys if f"obs/{k}" not in g]
-            if "actions" not in g or missing:
-                raise ValueError(f"{path}:data/{name} lacks {'actions' if 'actions' not in g else missing}")
-            obs = {k: np.asarray(g["obs"][k]) for k in obs_keys}
-            label = np.asarray(g["label"], dtype=np.float32).reshape(-1) if "label" in g else None
-            points = np.asarray(g["obstacle_points"], dtype=np.float32) if "obstacle_points" in g else None
-            demos.append(Demo(name, np.asarray(g["actions"], dtype=np.float32), obs, label, points,
-                              dict(g.attrs)))
-    if not demos:
-        raise ValueError(f"{path} holds no demos")
+            if "actions" not in g:
+                raise ValueError(f"{path}:data/{name} has no actions")
+            obs = {k: np.asarray(v) for k, v in g["obs"].items()} if "obs" in g else {}
+            label = np.asarray(g["label"]) if "label" in g else None
+            points = np.asarray(g["obstacle_points"]) if "obstacle_points" in g else None
+            demos.append(Demo(name, np.asarray(g["actions"]), obs, label, points, dict(g.attrs)))
     return demos
 
 
