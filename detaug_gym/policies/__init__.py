@@ -14,6 +14,7 @@ from detaug_gym.policies.base import (
 )
 
 register_policy("random", "detaug_gym.policies.random_policy:RandomPolicy", "uniform random actions")
+register_policy("scripted", "detaug_gym.policies.scripted:ScriptedExpert", "privileged scripted pick-and-place expert")
 
 __all__ = [
     "Policy",

@@ -1,0 +1,17 @@
+"""Demonstration datasets: LIBERO/robomimic HDF5 layout, loading (ours and LIBERO's), appending, replay.
+
+>>> from detaug_gym.data import load, replay
+>>> dataset = load("data/spatial.hdf5")
+>>> states = replay(env, dataset.demos[0])
+"""
+
+from detaug_gym.data.dataset import (
+    Dataset,
+    DatasetError,
+    DatasetWriter,
+    Demo,
+    load,
+    replay,
+)
+
+__all__ = ["Dataset", "DatasetError", "DatasetWriter", "Demo", "load", "replay"]

@@ -1,0 +1,403 @@
+"""Scripted expert (``scripted``): privileged-state pick-and-place demonstrations from the observation alone.
+
+The expert reads the task-relevant object poses, the task one-hot and its own end-effector and gripper
+state from the env's observation (``object_poses`` holds the bddl goal's objects and targets in order), so
+``make_policy("scripted")`` drives any SafeLibero or Newton env without access to the simulator. Which
+task it faces is recognised from the first observation (:func:`~detaug_gym.policies.scripted_tasks.
+identify_task`); the recipes and the object geometry live in :mod:`detaug_gym.policies.scripted_tasks`.
+
+Per pick-and-place: move above the grasp, descend, close, lift (and check the object came along, else
+retry), carry to above the place point keeping the grasp offset, descend, release, retreat. The drawer
+task pulls the top drawer open first (grasping its handle with the hand pitched towards the cabinet).
+Motions are straight lines with a minimum-jerk speed profile, tracked by a proportional servo on the
+end-effector pose, so transits look like teleoperation rather than bang-bang control.
+
+Per-demo variation (all from the ``reset`` seed): overall speed, approach and lift heights, grasp point
+(rim angle, height, along the object), place jitter (well inside the success tolerance) and small
+via-point jitter on the transits. The expert ignores obstacles: on L1/L2 it drives straight through.
+
+    >>> from detaug_gym.policies import make_policy
+    >>> expert = make_policy("scripted")
+    >>> expert.reset(seed=0); action = expert.act(obs)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Generator
+from dataclasses import dataclass
+from functools import partial
+
+import numpy as np
+
+from detaug_gym.policies.scripted_tasks import (
+    DRAWER_HANDLE,
+    DRAWER_OPEN_DIR,
+    DRAWER_TRAVEL,
+    OBJECTS,
+    RECIPES,
+    TARGETS,
+    Recipe,
+    Step,
+    identify_task,
+)
+
+POS_SCALE = 0.05  # m per unit action (OSC_POSE output_max)
+ROT_SCALE = 0.5  # rad per unit action
+OPEN, CLOSE = -1.0, 1.0
+# Grip-site orientation with the fingers pointing down and closing along world y (xyzw 0.7071, 0.7071, 0, 0).
+R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+Actions = Generator[np.ndarray, None, None]
+
+
+@dataclass(frozen=True)
+class DemoStyle:
+    """The per-demo variation drawn from the seed.
+
+    Attributes:
+        speed: average transit speed (m per 20 Hz step).
+        approach: height of the pre-grasp point above the grasp.
+        lift: lift height above the grasp before the carry.
+        place_approach: height above the release point where the final descent starts.
+        rim_angle: angle (rad) of the rim grasp point around the cup, from the side facing the robot.
+        grasp_dz: added to the grasp height.
+        grasp_along: shift (m) of a body grasp along the fingers' free axis.
+        place_jitter: xy shift (m) of the release point.
+        via: xy offset (m) of the transit via-point from the segment midpoint (0 = straight).
+    """
+
+    speed: float
+    approach: float
+    lift: float
+    place_approach: float
+    rim_angle: float
+    grasp_dz: float
+    grasp_along: float
+    place_jitter: tuple[float, float]
+    via: tuple[float, float]
+
+    @staticmethod
+    def sample(rng: np.random.Generator, variation: float = 1.0) -> DemoStyle:
+        u = lambda lo, hi: float(rng.uniform(lo, hi))  # noqa: E731
+        v = variation
+        return DemoStyle(
+            speed=0.016 + v * u(-0.004, 0.004),
+            approach=0.09 + v * u(-0.03, 0.03),
+            lift=0.12 + v * u(-0.03, 0.03),
+            place_approach=0.07 + v * u(-0.02, 0.02),
+            rim_angle=v * u(-0.25, 0.25),
+            grasp_dz=v * u(-0.004, 0.004),
+            grasp_along=v * u(-0.004, 0.004),
+            place_jitter=(v * u(-0.006, 0.006), v * u(-0.006, 0.006)),
+            via=(v * u(-0.03, 0.03), v * u(-0.03, 0.03)),
+        )
+
+
+class ScriptedExpert:
+    """Privileged scripted expert for the SafeLibero suites and the Newton pick-and-place.
+
+    Args:
+        task: recipe name (a key of :data:`~detaug_gym.policies.scripted_tasks.RECIPES`); default:
+            recognised from the first observation of each episode.
+        variation: scale of the per-demo variation (0 = the same nominal motion every episode).
+        seed: default seed when ``reset`` gets none.
+    """
+
+    def __init__(self, task: str | None = None, variation: float = 1.0, seed: int | None = None,
+                 **_: object) -> None:
+        if task is not None and task not in RECIPES:
+            raise ValueError(f"unknown task recipe {task!r}; valid: {', '.join(sorted(RECIPES))}")
+        if variation < 0:
+            raise ValueError(f"variation must be >= 0, got {variation}")
+        self.task = task
+        self.variation = float(variation)
+        self._default_seed = seed
+        self.reset(seed)
+
+    # ------------------------------------------------------------------ policy protocol
+    def reset(self, seed: int | None = None) -> None:
+        self._rng = np.random.default_rng(self._default_seed if seed is None else seed)
+        self.style = DemoStyle.sample(self._rng, self.variation)
+        self.recipe: Recipe | None = None
+        self._script: Actions | None = None
+        self._obs: dict[str, np.ndarray] = {}
+        self._yaw = 0.0
+        self._pitch = 0.0
+        self._grip = OPEN
+        self._last = np.zeros(7, dtype=np.float32)
+        self._home = np.zeros(3)
+        self.trace: list[tuple[str, int, bool]] = []  # (primitive, steps, reached) for debugging
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        self._obs = obs
+        if self._script is None:
+            self.recipe = RECIPES[self.task or identify_task(obs)]
+            self._yaw = self._current_yaw()
+            self._home = self._eef()
+            self._script = self._run(self.recipe)
+        try:
+            self._last = next(self._script)
+        except StopIteration:
+            self._last = self._servo(self._eef(), self._grip)
+        return self._last
+
+    # ------------------------------------------------------------------ the script
+    def _run(self, recipe: Recipe) -> Actions:
+        if recipe.open_drawer:
+            yield from self._open_drawer(recipe.steps[0].target_slot)
+        for step in recipe.steps:
+            offset = yield from self._pick(step)
+            yield from self._place(step, offset)
+        while True:  # hold still, gripper open, until the env ends the episode
+            yield self._servo(self._eef(), OPEN)
+
+    def _pick(self, step: Step) -> Generator[np.ndarray, None, np.ndarray]:
+        """Grasp the object in ``step.obj_slot`` and lift it; returns the grasp offset (eef - object)."""
+        style = self.style
+        for attempt in range(4):
+            grasp, yaw = self._grasp_pose(step, attempt)
+            start_z = self._pose(step.obj_slot)[2]
+            yield from self._move(grasp + [0, 0, style.approach], yaw, OPEN, style.speed, tol=0.01, via=True)
+            grasp, yaw = self._grasp_pose(step, attempt)
+            yield from self._move(grasp, yaw, OPEN, 0.6 * style.speed, tol=0.004)
+            yield from self._gripper(CLOSE)
+            offset = self._eef() - self._pose(step.obj_slot)[:3]
+            lift_z = max(grasp[2] + style.lift, self._above_place(step, offset)[2])
+            slipped = partial(self._slipped, step.obj_slot, offset[2])
+            yield from self._move(np.r_[grasp[:2], lift_z], yaw, CLOSE, 0.8 * style.speed, tol=0.02,
+                                  check=slipped)
+            if self._pose(step.obj_slot)[2] - start_z > 0.03 and not slipped():
+                return offset
+            yield from self._gripper(OPEN)
+            yield from self._move(self._eef() + [0, 0, 0.06], yaw, OPEN, style.speed, tol=0.02)
+        return self._eef() - self._pose(step.obj_slot)[:3]
+
+    def _slipped(self, slot: int, offset_z: float) -> bool:
+        """The held object lags more than 3 cm below where the grasp offset says it should be."""
+        return self._eef()[2] - self._pose(slot)[2] - offset_z > 0.03
+
+    def _place(self, step: Step, offset: np.ndarray) -> Actions:
+        style = self.style
+        release = self._place_eef(step, offset)
+        above = self._above_place(step, offset)
+        yield from self._move(above, self._yaw, CLOSE, style.speed, tol=0.012, via=True)
+        release = self._place_eef(step, offset)
+        yield from self._move(release, self._yaw, CLOSE, 0.5 * style.speed, tol=0.005)
+        yield from self._gripper(OPEN)
+        yield from self._move(self._eef() + [0, 0, 0.08], self._yaw, OPEN, 0.8 * style.speed, tol=0.02)
+
+    def _open_drawer(self, site_slot: int) -> Actions:
+        """Grasp the top drawer's handle with the hand pitched towards the cabinet and pull it open."""
+        style = self.style
+        site = self._pose(site_slot)
+        rot = quat_to_mat(site[3:])
+        handle = site[:3] + rot @ DRAWER_HANDLE
+        pull = rot @ DRAWER_OPEN_DIR
+        pre = handle + 0.08 * pull + [0, 0, 0.04]
+        yield from self._move(pre, 0.0, OPEN, style.speed, tol=0.01, pitch=np.pi / 2)
+        yield from self._move(handle + 0.07 * pull, 0.0, OPEN, 0.6 * style.speed, tol=0.006, pitch=np.pi / 2)
+        yield from self._move(handle - 0.005 * pull, 0.0, OPEN, 0.4 * style.speed, tol=0.005, pitch=np.pi / 2)
+        yield from self._gripper(CLOSE)
+        yield from self._move(handle + DRAWER_TRAVEL * pull, 0.0, CLOSE, 0.5 * style.speed, tol=0.01,
+                              pitch=np.pi / 2)
+        yield from self._gripper(OPEN)
+        yield from self._move(self._eef() + 0.06 * pull + [0, 0, 0.06], 0.0, OPEN, 0.6 * style.speed, tol=0.02,
+                              pitch=np.pi / 2)
+        # back to the start pose (hand down again) before the pick: untwists the wrist after the pull
+        yield from self._move(self._home, 0.0, OPEN, 0.6 * style.speed, tol=0.03, pitch=0.0)
+
+    # ------------------------------------------------------------------ geometry
+    def _grasp_pose(self, step: Step, attempt: int = 0) -> tuple[np.ndarray, float]:
+        """Grip-site position and hand yaw for grasping the object of ``step``."""
+        spec = OBJECTS[step.obj]
+        pose = self._pose(step.obj_slot)
+        rot = quat_to_mat(pose[3:])
+        dz = self.style.grasp_dz + (0.006 * attempt if attempt else 0.0)
+        if spec.style == "rim":
+            # Wall points on the rim circle at grasp height, in the cup's own (possibly tilted) frame; take
+            # the one facing where the hand started (the robot's side), which keeps the reach short and
+            # the hand clear of the cup's far side, without turning the wrist much.
+            centre = pose[:3] + rot @ np.array([*spec.rim_center, 0.0])
+            home = self._home[:2] - centre[:2]
+            home /= max(np.linalg.norm(home), 1e-9)
+            jitter = self.style.rim_angle + 0.3 * attempt
+            best_score, point, direction = -np.inf, None, None
+            for a in spec.rim_dirs:
+                local = np.array([np.cos(a + jitter), np.sin(a + jitter), 0.0])
+                radial = rot @ local
+                flat = np.array([radial[0], radial[1], 0.0]) / max(np.linalg.norm(radial[:2]), 1e-9)
+                yaw = _wrap_yaw(np.arctan2(flat[1], flat[0]) - np.pi / 2, self._yaw)
+                score = float(home @ flat[:2]) - abs(yaw - self._yaw)  # big wrist turns strain the arm
+                if score > best_score:
+                    best_score, direction = score, flat
+                    point = centre + rot @ (spec.rim_radius * local + np.array([0.0, 0.0, spec.height + dz]))
+            # the fingers close along the radial direction, i.e. across the wall
+            return point, _wrap_yaw(np.arctan2(direction[1], direction[0]) - np.pi / 2, self._yaw)
+        best = None
+        for axis in spec.axes:
+            world = rot @ np.array(axis)
+            yaw = _wrap_yaw(np.arctan2(world[1], world[0]) - np.pi / 2, self._yaw)
+            if best is None or abs(yaw - self._yaw) < abs(best - self._yaw):
+                best = yaw
+        free_axis = np.array([np.cos(best), np.sin(best), 0.0])  # fingers close along y rotated by yaw
+        point = pose[:3] + self.style.grasp_along * free_axis
+        point[2] = pose[2] + spec.height + dz
+        return point, best
+
+    def _above_place(self, step: Step, offset: np.ndarray) -> np.ndarray:
+        """Where the final descent starts: above the release point, with the object clear of any rim."""
+        place = TARGETS[step.target]
+        above = self._place_eef(step, offset) + [0, 0, self.style.place_approach]
+        if place.rim is not None:
+            clear = self._pose(step.target_slot)[2] + place.rim + 0.03 + OBJECTS[step.obj].bottom + offset[2]
+            above[2] = max(above[2], clear)
+        return above
+
+    def _place_eef(self, step: Step, offset: np.ndarray) -> np.ndarray:
+        """Grip-site position that releases the held object at the place point of ``step``."""
+        spec, place = OBJECTS[step.obj], TARGETS[step.target]
+        target = self._pose(step.target_slot)
+        rot = quat_to_mat(target[3:])
+        point = target[:3] + rot @ np.array([*place.offset, 0.0])
+        point[:2] += self.style.place_jitter
+        point[2] = target[2] + place.surface + place.clearance + spec.bottom
+        return point + offset
+
+    # ------------------------------------------------------------------ motion primitives
+    def _move(self, goal: np.ndarray, yaw: float, grip: float, speed: float, tol: float, via: bool = False,
+              pitch: float | None = None, check=None, timeout: int = 40) -> Actions:
+        """Straight (or gently bent) minimum-jerk line to ``goal``; ends once within ``tol`` of it.
+
+        ``check`` (optional) is called every step; returning True aborts the move (e.g. lost object).
+        """
+        start = self._eef()
+        goal = np.asarray(goal, dtype=np.float64)
+        yaw0, pitch0 = self._yaw, self._pitch
+        pitch = pitch0 if pitch is None else pitch
+        dist = float(np.linalg.norm(goal - start))
+        turn = max(abs(yaw - yaw0), abs(pitch - pitch0))
+        steps = max(int(np.ceil(dist / speed)), int(np.ceil(turn / 0.12)), 3)
+        mid = 0.5 * (start + goal)
+        if via and dist > 0.15:
+            mid[:2] += self.style.via
+        recent: list[np.ndarray] = []
+        for t in range(1, steps + timeout + 1):
+            s = _min_jerk(min(t / steps, 1.0))
+            carrot = _bezier(start, mid, goal, s)
+            self._yaw = yaw0 + (yaw - yaw0) * s
+            self._pitch = pitch0 + (pitch - pitch0) * s
+            yield self._servo(carrot, grip)
+            if t >= steps and np.linalg.norm(self._eef() - goal) < tol and self._rotation_error() < 0.15:
+                self.trace.append(("move", t, True))
+                return
+            recent = [*recent[-3:], self._eef()]
+            if (t >= steps + 3 and np.linalg.norm(recent[-1] - recent[0]) < 0.0015
+                    and self._rotation_error() < 0.3):  # stalled: blocked or at the edge of the reach
+                self.trace.append(("move-stall", t, False))
+                return
+            if check is not None and t > 4 and check():
+                self.trace.append(("move-abort", t, False))
+                return
+        self.trace.append(("move", steps + timeout, False))
+
+    def _gripper(self, command: float, max_steps: int = 16) -> Actions:
+        """Hold the pose and open/close the fingers until they stop moving.
+
+        The Panda gripper's command ramps (0.25 per step from -1 to +1), so the full grip force needs at
+        least 8 steps even when the fingers stop on the object earlier.
+        """
+        hold = self._eef()
+        last = self._width()
+        still = 0
+        for t in range(max_steps):
+            yield self._servo(hold, command)
+            width = self._width()
+            still = still + 1 if abs(width - last) < 2e-4 else 0
+            last = width
+            if t >= 8 and still >= 2:
+                break
+        self.trace.append(("grip", t + 1, True))
+
+    def _rotation_error(self) -> float:
+        current = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
+        return float(np.linalg.norm(mat_to_rotvec(self._hand_rotation() @ current.T)))
+
+    def _servo(self, target: np.ndarray, grip: float) -> np.ndarray:
+        """OSC_POSE delta that sets the controller's goal to ``target`` and the current yaw/pitch."""
+        self._grip = grip
+        action = np.zeros(7, dtype=np.float32)
+        action[:3] = np.clip((target - self._eef()) / POS_SCALE, -1.0, 1.0)
+        current = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
+        rotvec = mat_to_rotvec(self._hand_rotation() @ current.T)
+        action[3:6] = np.clip(rotvec / ROT_SCALE, -1.0, 1.0)
+        action[6] = grip
+        return action
+
+    # ------------------------------------------------------------------ observation access
+    def _eef(self) -> np.ndarray:
+        return np.asarray(self._obs["eef_pos"], dtype=np.float64).copy()
+
+    def _width(self) -> float:
+        q = np.asarray(self._obs["gripper_qpos"], dtype=np.float64)
+        return float(q[0] - q[1])
+
+    def _pose(self, slot: int) -> np.ndarray:
+        return np.asarray(self._obs["object_poses"][slot], dtype=np.float64)
+
+    def _hand_rotation(self) -> np.ndarray:
+        # Pitch turns the approach axis from straight down towards world +y's opposite (into a drawer
+        # front facing +y); yaw turns the fingers about world z.
+        return _rot_z(self._yaw) @ _rot_x(-self._pitch) @ R_DOWN
+
+    def _current_yaw(self) -> float:
+        rot = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64)) @ R_DOWN.T
+        return float(np.arctan2(rot[1, 0], rot[0, 0]))
+
+
+# ---------------------------------------------------------------------- small math
+def quat_to_mat(quat_xyzw: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion in xyzw order."""
+    x, y, z, w = np.asarray(quat_xyzw, dtype=np.float64) / max(np.linalg.norm(quat_xyzw), 1e-12)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def mat_to_rotvec(rot: np.ndarray) -> np.ndarray:
+    """Axis-angle vector (axis * angle) of a rotation matrix."""
+    cos = np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    vee = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1]])
+    if angle < 1e-6:
+        return 0.5 * vee
+    if np.pi - angle < 1e-4:  # near pi: axis from the symmetric part
+        axis = np.sqrt(np.maximum((np.diag(rot) + 1.0) / 2.0, 0.0))
+        axis *= np.where(vee >= 0, 1.0, -1.0)
+        return angle * axis / max(np.linalg.norm(axis), 1e-12)
+    return angle * vee / (2.0 * np.sin(angle))
+
+
+def _rot_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rot_x(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _wrap_yaw(yaw: float, reference: float) -> float:
+    """``yaw`` moved by multiples of pi (a parallel gripper is symmetric) to lie nearest ``reference``."""
+    return float(reference + (yaw - reference + np.pi / 2) % np.pi - np.pi / 2)
+
+
+def _min_jerk(s: float) -> float:
+    return s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
+
+
+def _bezier(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, s: float) -> np.ndarray:
+    """Quadratic Bezier through ``p0`` and ``p2`` pulled towards ``p1`` (a straight line when p1 is the midpoint)."""
+    return (1 - s) ** 2 * p0 + 2 * (1 - s) * s * p1 + s * s * p2

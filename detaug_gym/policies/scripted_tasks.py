@@ -1,0 +1,186 @@
+"""What the scripted expert knows about the task objects: grasp geometry, place rules and task recipes.
+
+Everything here was measured once on the compiled LIBERO / Newton scenes (collision-geom bounds in each
+body's frame, site sizes from the bddl regions) and is expressed relative to the poses that the
+observation carries (``object_poses``: the task-relevant bodies and sites in bddl goal order, deduplicated),
+so the expert needs nothing but the observation.
+
+Conventions: heights are metres along world z from a body origin (objects rest upright in every scene);
+horizontal offsets are in the body frame. The hand's default orientation (yaw 0) points the fingers down
+with the fingers closing along world y.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class GraspSpec:
+    """How to hold one object.
+
+    Attributes:
+        style: ``"rim"`` pinches one wall of a cup-like shell (bowl, mug), ``"body"`` closes across the
+            whole object.
+        height: grip-site height above the body origin at the grasp (``rim``: below the rim top, where
+            the finger pads reach the wall; ``body``: around the upper middle, pads clear of the support).
+        bottom: depth of the object's lowest point below its origin (negative: bottom above the origin).
+        axes: body-frame axes the fingers may close along (``body``); the one needing the least hand yaw
+            is used.
+        rim_center: body-frame xy of the cup axis (``rim``).
+        rim_radius: distance of the wall from the cup axis (``rim``).
+        rim_dirs: body-frame angles (rad) of the wall points that may be grasped (``rim``; mugs: away
+            from the handle); the one facing the robot's midline (world y = 0) is used.
+    """
+
+    style: str
+    height: float
+    bottom: float
+    axes: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0),)
+    rim_center: tuple[float, float] = (0.0, 0.0)
+    rim_radius: float = 0.0
+    rim_dirs: tuple[float, ...] = tuple(np.arange(8) * np.pi / 4)
+
+
+X, Y, Z = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
+
+# Heights and bottoms from the collision geoms' bounds at rest; rim radii from the wall pieces of the
+# shell meshes (bowl wall mid-surface at r = 0.046 + 0.27 h, 2.7 mm thick, rim top 0.052 above the origin;
+# the mugs' cup axes sit off the body origin, on the side away from the handle).
+OBJECTS: dict[str, GraspSpec] = {
+    "bowl": GraspSpec("rim", height=0.030, bottom=-0.0016, rim_center=(0.0, 0.0), rim_radius=0.048),
+    "porcelain_mug": GraspSpec("rim", height=0.090, bottom=-0.0024, rim_center=(0.017, 0.0), rim_radius=0.045,
+                                   rim_dirs=(0.0,)),
+    "white_yellow_mug": GraspSpec("rim", height=0.085, bottom=0.0001, rim_center=(-0.019, 0.0),
+                                  rim_radius=0.046, rim_dirs=(np.pi,)),
+    "carton": GraspSpec("body", height=0.025, bottom=0.0698, axes=(X, Z)),  # orange juice, milk (lying frame)
+    "pudding": GraspSpec("body", height=0.002, bottom=0.0131, axes=(Y,)),
+    "bbq_sauce": GraspSpec("body", height=0.025, bottom=0.0546, axes=(Y, X)),
+    "cream_cheese": GraspSpec("body", height=0.002, bottom=0.0089, axes=(Y,)),
+    "can": GraspSpec("body", height=0.012, bottom=0.0384, axes=(X, Z)),  # alphabet soup, tomato sauce
+    "cube": GraspSpec("body", height=0.004, bottom=0.02, axes=(X, Y)),  # Newton
+}
+
+
+@dataclass(frozen=True)
+class PlaceSpec:
+    """Where a held object goes, relative to the target pose from the observation.
+
+    Attributes:
+        surface: height of the supporting surface above the target's origin; the object is released with
+            its bottom ``clearance`` above it.
+        clearance: release gap (m) between the object's bottom and ``surface``.
+        offset: body-frame xy offset of the place point from the target origin.
+        rim: height above the target's origin that the object's bottom must clear before the final descent
+            (container walls); ``None``: the surface.
+    """
+
+    surface: float
+    clearance: float = 0.008
+    offset: tuple[float, float] = (0.0, 0.0)
+    rim: float | None = None
+
+
+TARGETS: dict[str, PlaceSpec] = {
+    "plate": PlaceSpec(surface=0.0164),
+    "cabinet_top": PlaceSpec(surface=0.0),  # wooden_cabinet_1_top_side is the top face
+    "stove": PlaceSpec(surface=0.0),  # flat_stove_1_cook_region: the burner plate
+    "drawer": PlaceSpec(surface=-0.027, clearance=0.012, rim=0.035),  # drawer floor / walls around the site
+    "basket": PlaceSpec(surface=-0.045, clearance=0.02, rim=0.074),  # region centre; wicker rim 0.074 above
+    "bowl": PlaceSpec(surface=0.012, clearance=0.02, rim=0.052),  # cream cheese into the bowl
+    "table_region": PlaceSpec(surface=0.0268, offset=(0.0, 0.02)),  # plate-right region of Long task 3
+    "disc": PlaceSpec(surface=0.0),  # Newton target disc (origin on the table top)
+}
+
+# Top drawer of LIBERO's wooden cabinet, in the frame of the site ``wooden_cabinet_1_top_region`` (which
+# rides on the drawer): the handle bar's centre and the drawer's opening direction, and how far it opens.
+DRAWER_HANDLE = np.array([0.0017, -0.1129, -0.0061])
+DRAWER_OPEN_DIR = np.array([0.0, -1.0, 0.0])
+DRAWER_TRAVEL = 0.15
+
+
+@dataclass(frozen=True)
+class Step:
+    """One pick-and-place of a recipe: slots index ``object_poses``."""
+
+    obj_slot: int
+    obj: str
+    target_slot: int
+    target: str
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """The expert's plan for one task: optionally open the top drawer first, then the pick-and-places."""
+
+    key: str
+    steps: tuple[Step, ...]
+    open_drawer: bool = False
+
+
+def _single(key: str, obj: str, target: str, **kw) -> Recipe:
+    return Recipe(key, (Step(0, obj, 1, target),), **kw)
+
+
+RECIPES: dict[str, Recipe] = {
+    "bowl_on_plate": _single("bowl_on_plate", "bowl", "plate"),
+    "bowl_on_cabinet": _single("bowl_on_cabinet", "bowl", "cabinet_top"),
+    "bowl_on_stove": _single("bowl_on_stove", "bowl", "stove"),
+    "drawer_bowl": _single("drawer_bowl", "bowl", "drawer", open_drawer=True),
+    "cream_cheese_in_bowl": _single("cream_cheese_in_bowl", "cream_cheese", "bowl"),
+    "orange_juice": _single("orange_juice", "carton", "basket"),
+    "chocolate_pudding": _single("chocolate_pudding", "pudding", "basket"),
+    "milk": _single("milk", "carton", "basket"),
+    "bbq_sauce": _single("bbq_sauce", "bbq_sauce", "basket"),
+    "soup_cheese_basket": Recipe("soup_cheese_basket", (Step(0, "can", 1, "basket"),
+                                                        Step(2, "cream_cheese", 1, "basket"))),
+    "soup_sauce_basket": Recipe("soup_sauce_basket", (Step(0, "can", 1, "basket"), Step(2, "can", 1, "basket"))),
+    "mugs_on_plates": Recipe("mugs_on_plates", (Step(0, "porcelain_mug", 1, "plate"),
+                                                Step(2, "white_yellow_mug", 3, "plate"))),
+    "mug_plate_pudding": Recipe("mug_plate_pudding", (Step(0, "porcelain_mug", 1, "plate"),
+                                                      Step(2, "pudding", 3, "table_region"))),
+    "newton_cube": _single("newton_cube", "cube", "disc"),
+}
+
+OBJECT_SUITE = ("orange_juice", "chocolate_pudding", "milk", "bbq_sauce")
+LONG_SUITE = ("soup_cheese_basket", "soup_sauce_basket", "mugs_on_plates", "mug_plate_pudding")
+
+
+def _quat_close(q: np.ndarray, ref: tuple[float, float, float, float], tol: float = 0.05) -> bool:
+    return abs(float(np.dot(q, ref))) > 1.0 - tol
+
+
+def identify_task(obs: dict[str, np.ndarray]) -> str:
+    """Name of the recipe for the episode that ``obs`` (a first observation) belongs to.
+
+    Uses only the observation: the Newton env has one task; the Long suite has four object slots; the
+    Object suite's scene is LIBERO's floor scene (objects near z = 0); the kitchen scenes (Spatial, Goal)
+    are told apart by the target's pose, which is fixed per task (cabinet top, stove, drawer region) or by
+    the object to pick (the cream cheese lies at yaw 180 deg, the bowls at 90 deg).
+
+    Raises:
+        ValueError: the observation matches no known task.
+    """
+    task_id = np.asarray(obs["task_id"]).ravel()
+    index = int(np.argmax(task_id))
+    poses = np.asarray(obs["object_poses"], dtype=np.float64)
+    if task_id.size == 1:
+        return "newton_cube"
+    if poses.shape[0] == 4:
+        return LONG_SUITE[index]
+    obj, target = poses[0], poses[1]
+    if obj[2] < 0.3:
+        return OBJECT_SUITE[index]
+    if obj[2] < 0.8:
+        raise ValueError(f"no scripted recipe for a scene with objects at z = {obj[2]:.3f}")
+    if _quat_close(target[3:], (-0.7071, 0.0, 0.7071, 0.0)):
+        return "drawer_bowl"
+    if target[2] > 1.05:
+        return "bowl_on_cabinet"
+    if _quat_close(target[3:], (0.0, 0.0, 0.0, 1.0)):
+        return "bowl_on_stove"
+    if _quat_close(obj[3:], (0.0, 0.0, 1.0, 0.0)):
+        return "cream_cheese_in_bowl"
+    return "bowl_on_plate"

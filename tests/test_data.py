@@ -1,0 +1,152 @@
+"""Dataset format: round trip, resume, LIBERO-layout files, clear errors, replay and resumable collection."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from detaug_gym.data import DatasetError, DatasetWriter, Demo, load, replay
+
+ENV_ARGS = {"env_name": "SafeLibero-Spatial-Free-v0", "env_version": "0", "type": "detaug_gym", "env_kwargs": {}}
+
+
+def _demo(t: int = 5, task: int = 0, init_state: int = 0, seed: int = 0, **extra) -> Demo:
+    rng = np.random.default_rng(seed)
+    actions = rng.uniform(-1, 1, (t, 7)).astype(np.float32)
+    return Demo(
+        actions=actions,
+        states=rng.normal(size=(t, 11)),
+        obs={"eef_pos": rng.normal(size=(t, 3)).astype(np.float32),
+             "object_poses": rng.normal(size=(t, 2, 7)).astype(np.float32),
+             "obstacle_points": np.zeros((t, 4, 3), dtype=np.float32)},
+        gripper_command=actions[:, -1].copy(),
+        attrs={"env_id": ENV_ARGS["env_name"], "task": task, "task_key": "k", "init_state": init_state,
+               "seed": seed, "controller": json.dumps({"type": "OSC_POSE"})},
+        **extra,
+    )
+
+
+def test_round_trip_keeps_arrays_attrs_and_optional_fields(tmp_path):
+    path = tmp_path / "d.hdf5"
+    first = _demo(seed=1)
+    second = _demo(t=7, seed=2, label=np.array([0.3, 0.7], dtype=np.float32),
+                   obstacle_points=np.ones((6, 3), dtype=np.float32))
+    with DatasetWriter(path, ENV_ARGS) as writer:
+        assert writer.append(first) == "demo_0"
+        assert writer.append(second) == "demo_1"
+    data = load(path)
+    assert len(data) == 2
+    assert data.attrs["env_args"] == ENV_ARGS and data.attrs["total"] == 12
+    got = data[1]
+    np.testing.assert_array_equal(got.actions, second.actions)
+    np.testing.assert_array_equal(got.states, second.states)
+    np.testing.assert_array_equal(got.obs["object_poses"], second.obs["object_poses"])
+    assert "obstacle_points" not in got.obs  # obstacle observation keys are not stored per step
+    np.testing.assert_array_equal(got.label, second.label)
+    np.testing.assert_array_equal(got.obstacle_points, second.obstacle_points)
+    assert data[0].label is None and data[0].obstacle_points is None
+    assert got.attrs["num_samples"] == 7 and got.attrs["controller"] == {"type": "OSC_POSE"}
+    assert got.key == (0, 0, 2)
+
+
+def test_writer_resumes_and_drops_a_half_written_demo(tmp_path):
+    path = tmp_path / "d.hdf5"
+    with DatasetWriter(path, ENV_ARGS) as writer:
+        writer.append(_demo(seed=1))
+    with h5py.File(path, "a") as f:  # a crash mid-write leaves a group without actions
+        f["data"].create_group("demo_1").create_dataset("states", data=np.zeros((3, 11)))
+    with DatasetWriter(path, ENV_ARGS) as writer:
+        assert len(writer) == 1
+        assert writer.has(0, 0, 1) and not writer.has(0, 0, 2)
+        assert writer.append(_demo(seed=2)) == "demo_1"
+    assert [d.key for d in load(path)] == [(0, 0, 1), (0, 0, 2)]
+    with pytest.raises(DatasetError, match="Newton"):
+        DatasetWriter(path, {**ENV_ARGS, "env_name": "Newton-PickPlace-v0"})
+
+
+def test_loads_libero_layout(tmp_path):
+    path = tmp_path / "libero_demo.hdf5"
+    t = 4
+    with h5py.File(path, "w") as f:
+        data = f.create_group("data")
+        data.attrs["env_args"] = json.dumps({"env_name": "Libero", "type": 1, "env_kwargs": {}})
+        data.attrs["total"] = t
+        demo = data.create_group("demo_0")
+        demo.attrs["num_samples"] = t
+        demo.create_dataset("actions", data=np.full((t, 7), 0.5))
+        demo.create_dataset("states", data=np.zeros((t, 9)))
+        demo.create_dataset("rewards", data=np.zeros(t))
+        demo.create_dataset("dones", data=np.r_[np.zeros(t - 1), 1.0])
+        obs = demo.create_group("obs")
+        obs.create_dataset("joint_states", data=np.ones((t, 7)))
+        obs.create_dataset("gripper_states", data=np.ones((t, 2)))
+        obs.create_dataset("ee_pos", data=np.ones((t, 3)))
+        obs.create_dataset("ee_ori", data=np.ones((t, 3)))
+        obs.create_dataset("agentview_rgb", data=np.zeros((t, 8, 8, 3), dtype=np.uint8))
+    data = load(path)
+    demo = data[0]
+    assert data.attrs["env_args"]["env_name"] == "Libero"
+    assert set(demo.obs) == {"robot_joint_pos", "gripper_qpos", "eef_pos", "eef_ori"}
+    np.testing.assert_array_equal(demo.gripper_command, np.full(t, 0.5, dtype=np.float32))
+    assert demo.dones[-1] == 1.0 and demo.label is None
+
+
+def test_missing_and_corrupt_files_name_the_file(tmp_path):
+    missing = tmp_path / "nope.hdf5"
+    with pytest.raises(DatasetError, match="nope.hdf5.*no such"):
+        load(missing)
+    corrupt = tmp_path / "corrupt.hdf5"
+    corrupt.write_bytes(b"this is not hdf5" * 10)
+    with pytest.raises(DatasetError, match="corrupt.hdf5.*not a readable HDF5"):
+        load(corrupt)
+    empty = tmp_path / "empty.hdf5"
+    with h5py.File(empty, "w") as f:
+        f.create_group("other")
+    with pytest.raises(DatasetError, match="empty.hdf5.*no 'data' group"):
+        load(empty)
+    broken = tmp_path / "broken.hdf5"
+    with h5py.File(broken, "w") as f:
+        f.create_group("data/demo_0/obs")
+    with pytest.raises(DatasetError, match="demo_0 is incomplete"):
+        load(broken)
+
+
+@pytest.fixture(scope="module")
+def collected(tmp_path_factory):
+    """Two Spatial task-0 demos from the collect CLI (the second run resumes the first)."""
+    from detaug_gym.collect import CollectArgs, collect
+
+    path = tmp_path_factory.mktemp("collect") / "raw.hdf5"
+    first = collect(CollectArgs(env="SafeLibero-Spatial-Free-v0", out=str(path), task="0", demos=1))
+    second = collect(CollectArgs(env="SafeLibero-Spatial-Free-v0", out=str(path), task="0", demos=2))
+    return path, first, second
+
+
+def test_collect_resumes_without_redoing_demos(collected):
+    path, first, second = collected
+    assert first[0].kept == 1 and first[0].attempts == 1
+    assert second[0].resumed == 1 and second[0].kept == 2 and second[0].attempts == 1
+    data = load(path)
+    assert [d.attrs["init_state"] for d in data] == [0, 1]
+    demo = data[0]
+    assert demo.states.shape == (len(demo), demo.states.shape[1]) and demo.actions.dtype == np.float32
+    assert {"robot_joint_pos", "robot_joint_vel", "gripper_qpos", "eef_pos", "eef_quat", "object_poses",
+            "task_id"} <= set(demo.obs)
+    assert demo.dones[-1] == 1.0  # kept demos end in success
+
+
+def test_replay_reproduces_recorded_states(collected):
+    import gymnasium as gym
+
+    path, _, _ = collected
+    demo = load(path)[0]
+    env = gym.make(demo.attrs["env_id"])
+    try:
+        states = replay(env, demo)
+    finally:
+        env.close()
+    assert states.shape == demo.states.shape
+    np.testing.assert_allclose(states, demo.states, atol=1e-9)
