@@ -220,6 +220,8 @@ class ScriptedExpert:
             centre = pose[:3] + rot @ np.array([*spec.rim_center, 0.0])
             home = self._home[:2] - centre[:2]
             home /= max(np.linalg.norm(home), 1e-9)
+            away = centre[:2] - self._pose(step.target_slot)[:2]
+            away *= step.rim_away / max(np.linalg.norm(away), 1e-9)
             jitter = self.style.rim_angle + 0.3 * attempt
             best_score, point, direction = -np.inf, None, None
             for a in spec.rim_dirs:
@@ -227,7 +229,7 @@ class ScriptedExpert:
                 radial = rot @ local
                 flat = np.array([radial[0], radial[1], 0.0]) / max(np.linalg.norm(radial[:2]), 1e-9)
                 yaw = _wrap_yaw(np.arctan2(flat[1], flat[0]) - np.pi / 2, self._yaw)
-                score = float(home @ flat[:2]) - abs(yaw - self._yaw)  # big wrist turns strain the arm
+                score = float((home + away) @ flat[:2]) - abs(yaw - self._yaw)  # big wrist turns strain the arm
                 if score > best_score:
                     best_score, direction = score, flat
                     point = centre + rot @ (spec.rim_radius * local + np.array([0.0, 0.0, spec.height + dz]))

@@ -87,7 +87,8 @@ TARGETS: dict[str, PlaceSpec] = {
     "plate": PlaceSpec(surface=0.0164),
     "cabinet_top": PlaceSpec(surface=0.0),  # wooden_cabinet_1_top_side is the top face
     "stove": PlaceSpec(surface=0.0),  # flat_stove_1_cook_region: the burner plate
-    "drawer": PlaceSpec(surface=-0.027, clearance=0.012, rim=0.035),  # drawer floor / walls around the site
+    # drawer floor / walls around the site; the offset (site frame, = world +y) keeps the bowl off the cabinet front
+    "drawer": PlaceSpec(surface=-0.027, clearance=0.012, rim=0.035, offset=(0.0, -0.012)),
     "basket": PlaceSpec(surface=-0.045, clearance=0.02, rim=0.074),  # region centre; wicker rim 0.074 above
     "bowl": PlaceSpec(surface=0.012, clearance=0.02, rim=0.052),  # cream cheese into the bowl
     "table_region": PlaceSpec(surface=0.0268, offset=(0.0, 0.02)),  # plate-right region of Long task 3
@@ -103,12 +104,17 @@ DRAWER_TRAVEL = 0.15
 
 @dataclass(frozen=True)
 class Step:
-    """One pick-and-place of a recipe: slots index ``object_poses``."""
+    """One pick-and-place of a recipe: slots index ``object_poses``.
+
+    ``rim_away`` (rim grasps) favours wall points facing away from the target, for targets that crowd the
+    object's near side (the opened drawer reaches the bowl).
+    """
 
     obj_slot: int
     obj: str
     target_slot: int
     target: str
+    rim_away: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -128,7 +134,7 @@ RECIPES: dict[str, Recipe] = {
     "bowl_on_plate": _single("bowl_on_plate", "bowl", "plate"),
     "bowl_on_cabinet": _single("bowl_on_cabinet", "bowl", "cabinet_top"),
     "bowl_on_stove": _single("bowl_on_stove", "bowl", "stove"),
-    "drawer_bowl": _single("drawer_bowl", "bowl", "drawer", open_drawer=True),
+    "drawer_bowl": Recipe("drawer_bowl", (Step(0, "bowl", 1, "drawer", rim_away=2.0),), open_drawer=True),
     "cream_cheese_in_bowl": _single("cream_cheese_in_bowl", "cream_cheese", "bowl"),
     "orange_juice": _single("orange_juice", "carton", "basket"),
     "chocolate_pudding": _single("chocolate_pudding", "pudding", "basket"),
