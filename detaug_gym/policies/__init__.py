@@ -15,11 +15,21 @@ from detaug_gym.policies.base import (
 
 register_policy("random", "detaug_gym.policies.random_policy:RandomPolicy", "uniform random actions")
 register_policy("scripted", "detaug_gym.policies.scripted:ScriptedExpert", "privileged scripted pick-and-place expert")
+register_policy("base", "detaug_gym.policies.flow_base:BaseFlowPolicy", "flow policy on unaugmented demos, no label")
+register_policy("detaug", "detaug_gym.policies.detaug:DetAugPolicy", "DetAug: K-label selection by collision cost")
+
+
+def load(path, **options):
+    """A policy for a trained checkpoint folder (``policies/<method>/<suite>/``)."""
+    from detaug_gym.policies.flow_base import load as load_flow
+
+    return load_flow(path, **options)
 
 __all__ = [
     "Policy",
     "PolicySpec",
     "available_policies",
+    "load",
     "make_policy",
     "policy_class",
     "register_policy",

@@ -1,0 +1,135 @@
+"""DetAug: sample K augmentation labels, generate K plans in one batch, execute the least-colliding one.
+
+At every replan (every ``action_steps`` env steps) a fresh batch of K labels is drawn uniformly from the
+training support (the labels of the augmented demos of the current task), the K plans are generated in
+one batched call, each plan's joint trajectory is scored by the penetration of the robot's surface points
+into the observed obstacle (``detaug_gym.geometry``), and the best plan is executed. Among equally good
+plans (e.g. no obstacle in view, all costs zero) the least bent one (smallest label norm) wins, so free
+space is crossed the way the unaugmented demos cross it.
+
+Options reproduce the paper's ablations: ``k``, ``latch`` (keep the first choice for the episode),
+``labels="zero"`` (K samples with the unbent label), ``cost="clearance"``, and the selection-vs-guidance
+variants ``mode="null_guidance"`` (null token + guidance, no selection), ``"guided_select"`` (guidance and
+selection) and ``"null_select"`` (selection over null-token samples).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from detaug_gym.models.flow import Guidance
+from detaug_gym.models.policy import FlowPolicy, load_checkpoint, zoo_dir
+
+MODES = ("select", "null_guidance", "guided_select", "null_select")
+LABEL_SOURCES = ("random", "zero")
+COSTS = ("penetration", "clearance")
+
+
+@dataclass
+class ReplanDiagnostics:
+    """What one replan decided."""
+
+    label: np.ndarray
+    best_cost: float
+    median_cost: float
+    k: int
+
+
+class DetAugPolicy(FlowPolicy):
+    """DetAug label selection on a checkpoint trained with labels (``python -m detaug_gym.train --method detaug``).
+
+    Args:
+        suite: loads ``policies/detaug/<suite>/`` unless ``checkpoint`` is given.
+        checkpoint: a checkpoint folder.
+        k: candidates per replan (paper: 32).
+        latch: keep the first selected label for the whole episode (the paper found this halves clean success).
+        labels: ``"random"`` (DetAug) or ``"zero"`` (the unbent label for all K candidates).
+        cost: ``"penetration"`` (paper) or ``"clearance"``.
+        mode: one of :data:`MODES` (selection vs guidance ablation).
+        guidance_scale, guidance_t_min: lambda and chi of the guidance variants.
+        action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
+    """
+
+    def __init__(self, suite: str = "spatial", checkpoint: str | None = None, k: int = 32, latch: bool = False,
+                 labels: str = "random", cost: str = "penetration", mode: str = "select",
+                 guidance_scale: float = 3.0, guidance_t_min: float = 0.8, **options) -> None:
+        ckpt = load_checkpoint(checkpoint or zoo_dir("detaug", suite))
+        if not ckpt.network.config.dit.label_dim:
+            raise ValueError(f"{ckpt.path} was trained without labels ({ckpt.method!r}); DetAug needs a "
+                             "checkpoint from `python -m detaug_gym.train --method detaug`")
+        for name, value, valid in (("labels", labels, LABEL_SOURCES), ("cost", cost, COSTS), ("mode", mode, MODES)):
+            if value not in valid:
+                raise ValueError(f"unknown {name} {value!r}; valid: {', '.join(valid)}")
+        if k < 1:
+            raise ValueError(f"k must be >= 1, got {k}")
+        if labels == "random" and len(ckpt.labels.bank) == 0:
+            raise ValueError(f"{ckpt.path} stores no training labels to sample from")
+        super().__init__(ckpt, **options)
+        self.k, self.latch, self.label_source, self.cost_kind, self.mode = int(k), latch, labels, cost, mode
+        self.guidance_scale, self.guidance_t_min = guidance_scale, guidance_t_min
+        self.diagnostics: list[ReplanDiagnostics] = []
+        self._latched: np.ndarray | None = None
+        self._rng = np.random.default_rng()
+
+    def reset(self, seed: int | None = None) -> None:
+        super().reset(seed)
+        self._rng = np.random.default_rng(seed)
+        self._latched = None
+        self.diagnostics = []
+
+    # ------------------------------------------------------------------ selection
+    def sample_labels(self, obs: Mapping[str, np.ndarray], k: int) -> np.ndarray:
+        """(k, L) labels: rows of the current task's training labels (uniform, without replacement when
+        there are enough), or zeros with ``labels="zero"``."""
+        if self.label_source == "zero":
+            return np.zeros((k, self.label_dim), np.float32)
+        bank, tasks = self.labels.bank, self.labels.task
+        task = int(np.argmax(obs["task_id"])) if "task_id" in obs else -1
+        rows = np.flatnonzero(tasks == task)
+        rows = rows if len(rows) else np.arange(len(bank))
+        pick = self._rng.choice(rows, size=k, replace=len(rows) < k)
+        return bank[pick].astype(np.float32)
+
+    def next_plan(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        if self._latched is not None:
+            return self.plan(obs, self._latched[None], num_samples=1)[0].numpy()
+        use_labels = self.mode in ("select", "guided_select")
+        k = 1 if self.mode == "null_guidance" else self.k
+        labels = self.sample_labels(obs, k) if use_labels else None
+        guidance = self._guidance(obs) if self.mode in ("null_guidance", "guided_select") else None
+        plans = self.plan(obs, labels, num_samples=k, guidance=guidance)
+        costs = self.score(plans, obs)
+        norms = np.zeros(k) if labels is None else np.linalg.norm(labels, axis=1)
+        best = int(np.lexsort((norms, np.round(costs, 6)))[0])  # lowest cost, then least bent
+        chosen = labels[best] if labels is not None else np.zeros(self.label_dim, np.float32)
+        self.diagnostics.append(ReplanDiagnostics(chosen, float(costs[best]), float(np.median(costs)), k))
+        if self.latch and labels is not None:
+            self._latched = chosen
+        return plans[best].numpy()
+
+    def score(self, plans: torch.Tensor, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        """(K,) collision cost of plans (K, H, D) against the observed obstacle (0 without one)."""
+        from detaug_gym.geometry import plan_collision_cost
+
+        if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) == 0.0:
+            return np.zeros(len(plans))
+        joints = plans[..., self.layout.key_slice("robot_joint_pos")].double()
+        with torch.no_grad():
+            return plan_collision_cost(joints, dict(obs), kind=self.cost_kind).numpy()
+
+    def _guidance(self, obs: Mapping[str, np.ndarray]) -> Guidance | None:
+        if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) == 0.0:
+            return None
+        from detaug_gym.geometry import plan_collision_cost
+
+        joint_slice = self.layout.key_slice("robot_joint_pos")
+        observation = dict(obs)
+
+        def cost(plan: torch.Tensor, t: float) -> torch.Tensor:
+            return plan_collision_cost(plan[..., joint_slice], observation, kind=self.cost_kind)
+
+        return Guidance(cost, scale=self.guidance_scale, t_min=self.guidance_t_min)

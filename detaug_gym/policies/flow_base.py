@@ -1,0 +1,30 @@
+"""``base``: the flow policy trained on the unaugmented demos, with no label (the frozen prior of CAPE/AEGIS)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from detaug_gym.models.policy import FlowPolicy, load_checkpoint, zoo_dir
+
+
+class BaseFlowPolicy(FlowPolicy):
+    """Loads ``policies/base/<suite>/`` (or ``checkpoint``) and plans without a label.
+
+    Args:
+        suite: zoo suite folder.
+        checkpoint: a checkpoint folder instead of the zoo's.
+        **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``action_steps``, ``flow_steps``, ...).
+    """
+
+    def __init__(self, suite: str = "spatial", checkpoint: str | Path | None = None, **options) -> None:
+        super().__init__(load_checkpoint(checkpoint or zoo_dir("base", suite)), **options)
+
+
+def load(path: str | Path, **options) -> FlowPolicy:
+    """The policy for a checkpoint folder: DetAug selection for label checkpoints, else a plain flow policy."""
+    checkpoint = load_checkpoint(path)
+    if checkpoint.method == "detaug":
+        from detaug_gym.policies.detaug import DetAugPolicy
+
+        return DetAugPolicy(checkpoint=str(path), **options)
+    return FlowPolicy(checkpoint, **options)
