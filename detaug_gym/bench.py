@@ -26,7 +26,7 @@ import json
 import os
 import zlib
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -45,6 +45,7 @@ class Job:
     key: EpisodeKey
     suite: str
     level: str
+    threads: int = 1
 
 
 def parse_levels(values: list[str]) -> list[str]:
@@ -106,10 +107,12 @@ _CACHE: dict = {}
 def _run_job(job: Job) -> dict:
     """Worker entry: run one episode with cached env and policy."""
     import gymnasium as gym
+    import torch
 
     import detaug_gym  # noqa: F401
     from detaug_gym.policies import make_policy
 
+    torch.set_num_threads(job.threads)  # torch's worker threads stall when several processes share the cores
     env_key, pol_key = ("env", job.key.env_id), ("policy", job.key.method, job.suite)
     try:
         if env_key not in _CACHE:
@@ -136,7 +139,7 @@ def run(args: argparse.Namespace) -> str:
     out.mkdir(parents=True, exist_ok=True)
     log = out / "episodes.jsonl"
     done = {(r["method"], r["env_id"], r["task"], r["episode"], r["seed"]) for r in read_records(log)}
-    jobs = [j for j in plan_jobs(methods, suites, levels, args.episodes, args.seed)
+    jobs = [replace(j, threads=args.threads) for j in plan_jobs(methods, suites, levels, args.episodes, args.seed)
             if j.key.as_tuple() not in done]
     print(f"{len(done)} episodes already in {log}; {len(jobs)} to run")
     with open(log, "a") as f, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
@@ -170,6 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=4, help="episodes per (method, suite, level) cell")
     p.add_argument("--seed", type=int, default=0, help="run seed; episode seeds derive from it")
     p.add_argument("--workers", type=int, default=1, help="parallel worker processes")
+    p.add_argument("--threads", type=int, default=1, help="torch threads per worker")
     p.add_argument("--out", default="results/default", help="output folder (rerun the same command to resume)")
     return p
 
