@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 from detaug_gym.envs.placement import (
     L1_GAP,
     L2_LATERAL,
+    TRANSIT_HEIGHT,
     Footprint,
     PlacementProblem,
     choose_pedestal,
@@ -88,12 +89,15 @@ def test_same_generator_state_gives_same_placement():
 @settings(max_examples=60, deadline=None)
 @given(height=st.floats(0.02, 0.4))
 def test_pedestal_lifts_short_obstacles_into_the_path(height):
+    need = TRANSIT_HEIGHT - 0.05  # the default held-object height
     pedestal = choose_pedestal(height)
     top = height + {None: 0.0, "half": 0.07, "full": 0.14}[pedestal]
     if pedestal is None:
-        assert height >= 0.11 - 1e-9
+        assert height >= need - 1e-9
     else:
-        assert top >= 0.11 - 1e-9 or pedestal == "full"
+        assert top >= need - 1e-9 or pedestal == "full"
+        if pedestal == "full":
+            assert height + 0.07 < need  # the half pedestal would not have been enough
 
 
 def test_bad_level_is_rejected():

@@ -24,9 +24,10 @@ PEDESTALS: dict[str, np.ndarray] = {
     "half": np.array([0.045, 0.045, 0.035]),
     "full": np.array([0.045, 0.045, 0.07]),
 }
-# Eef height above the support surface at which the scripted expert carries objects; a Level 2
-# obstacle must reach this high (minus the held object's height) to block the straight path.
-TRANSIT_HEIGHT = 0.16
+# Upper end of the eef height above the support at which the scripted expert carries objects (grasp
+# ~0.03 m + lift 0.12 +- 0.03 m, more over tall targets); a Level 2 obstacle must reach this high, minus
+# the held object's height, to block the straight path, so short obstacles stand on a pedestal.
+TRANSIT_HEIGHT = 0.22
 L1_GAP = (0.03, 0.10)  # footprint gap between obstacle and pick object at Level 1 (m)
 L2_PATH_FRACTION = (0.3, 0.7)  # where along its path segment the Level 2 obstacle stands
 L2_LATERAL = 0.02  # lateral jitter off the segment at Level 2 (m), SafeLIBERO's 0-2 cm
