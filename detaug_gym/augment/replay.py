@@ -1,0 +1,178 @@
+"""Execute a :class:`~detaug_gym.augment.plan.Plan` in the env and record what really happened.
+
+Copied steps (interaction windows, margins, the untouched rest) reproduce the source's *commands*: the
+gripper command bit for bit, and the arm's OSC goal in the world frame. An OSC_POSE delta action is
+relative to the end-effector pose at which it is sent, so once an arc has put the arm in a (slightly)
+different state, re-sending the source's raw deltas would re-play the source's goals shifted by that
+error, and the error never closes (a 4 mm miss at the window start grew to 1.7 cm at the grasp in our
+tests). Instead the copied step sends the delta that puts the controller's goal where the source's was:
+
+    goal_src = p_src + 0.05 a_src[:3],  R_goal_src = exp(0.5 a_src[3:6]) R_src,
+    a[:3] = (goal_src - p) / 0.05,      a[3:6] = rotvec(R_goal_src R^T) / 0.5,   a[6] = a_src[6],
+
+which equals the source's action exactly when the state equals the source's. Steps before the first arc
+send the source's actions unchanged (``raw_prefix``), so an unbent demo replays bit for bit.
+
+Transit steps are closed loop: the OSC_POSE delta that moves the controller's goal from the *measured*
+end-effector pose to the next arc target,
+
+    a_pos = (p*_{t+1} + lead (p*_{t+1} - p*_t) - p_t) / 0.05,   a_rot = rotvec(R*_{t+1} R_t^T) / 0.5,
+
+clipped to [-1, 1] (the scales robosuite's OSC_POSE uses with ``control_delta``). The ``lead`` term feeds
+the target's own velocity forward: robosuite's OSC is a critically damped spring towards a goal that is
+reset every step, so without it the arm lags a moving target. The arc ends with zero speed (min-jerk), so
+the arm is on the source's pose when the copied interaction window starts.
+
+The recorded demo is the replay itself (states, observations, actions), so the data are consistent with
+the env by construction. Replay stops at the first success (as the source collection does), or after the
+plan plus ``extra_steps`` hold steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from detaug_gym.augment.ik import quat_xyzw_to_mat, rotation_error
+from detaug_gym.augment.plan import Plan
+
+POS_SCALE = 0.05  # m per unit action, robosuite OSC_POSE output_max
+ROT_SCALE = 0.5  # rad per unit action
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """Tracking and acceptance of the replay.
+
+    Attributes:
+        lead: velocity feed-forward of the tracker (steps of target motion added to the goal).
+        tolerance: largest eef distance (m) from the planned arc during a transit.
+        offset_tolerance: drift (m) of the held object in the grip-site frame during a carry allowed on top
+            of the drift the source's own carry shows.
+        extra_steps: hold steps allowed after the plan for the success check to fire.
+        raw_prefix: send the source's raw actions until the first arc starts (bit-identical prefix).
+    """
+
+    lead: float = 1.0
+    tolerance: float = 0.015
+    offset_tolerance: float = 0.01
+    extra_steps: int = 10
+    raw_prefix: bool = True
+
+
+@dataclass
+class Recording:
+    """What the replay produced; arrays have one row per executed step."""
+
+    actions: list[np.ndarray] = field(default_factory=list)
+    states: list[np.ndarray] = field(default_factory=list)
+    obs: list[dict[str, np.ndarray]] = field(default_factory=list)
+    success: bool = False
+    max_deviation: float = 0.0
+    max_offset_drift: float = 0.0
+
+    def stacked_obs(self) -> dict[str, np.ndarray]:
+        return {k: np.stack([o[k] for o in self.obs]) for k in self.obs[0]}
+
+
+def tracking_action(pos: np.ndarray, rot: np.ndarray, target_pos: np.ndarray, target_rot: np.ndarray,
+                    prev_target_pos: np.ndarray, grip: float, lead: float) -> np.ndarray:
+    """The OSC_POSE delta action (7,) towards the next target (see the module docstring)."""
+    action = np.zeros(7)
+    goal = target_pos + lead * (target_pos - prev_target_pos)
+    action[:3] = np.clip((goal - pos) / POS_SCALE, -1.0, 1.0)
+    action[3:6] = np.clip(rotation_error(target_rot, rot) / ROT_SCALE, -1.0, 1.0)
+    action[6] = grip
+    return action
+
+
+def source_goal_action(pos: np.ndarray, rot: np.ndarray, src_pos: np.ndarray, src_rot: np.ndarray,
+                       src_action: np.ndarray) -> np.ndarray:
+    """The action (7,) whose OSC goal equals the goal the source's ``src_action`` set from its own pose."""
+    src_action = np.clip(np.asarray(src_action, dtype=np.float64), -1.0, 1.0)
+    goal_pos = src_pos + POS_SCALE * src_action[:3]
+    goal_rot = axis_angle_matrix(ROT_SCALE * src_action[3:6]) @ src_rot
+    action = np.zeros(7)
+    action[:3] = np.clip((goal_pos - pos) / POS_SCALE, -1.0, 1.0)
+    action[3:6] = np.clip(rotation_error(goal_rot, rot) / ROT_SCALE, -1.0, 1.0)
+    action[6] = src_action[6]
+    return action
+
+
+def axis_angle_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (Rodrigues)."""
+    angle = float(np.linalg.norm(rotvec))
+    if angle < 1e-12:
+        return np.eye(3)
+    k = rotvec / angle
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * kx @ kx
+
+
+def distance_to_polyline(point: np.ndarray, poly: np.ndarray) -> float:
+    """Euclidean distance from ``point`` (3,) to the polyline ``poly`` (N, 3)."""
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", point - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18), 0, 1)
+    return float(np.min(np.linalg.norm(a + t[:, None] * ab - point, axis=1)))
+
+
+def run_plan(env, obs: dict, plan: Plan, source_actions: np.ndarray, config: ReplayConfig,
+             held_body: dict[int, int] | None = None) -> Recording:
+    """Step ``env`` (already at the source's first frame, ``obs`` its observation) through ``plan``.
+
+    ``held_body`` maps span index -> body id of the object carried in that span (carries only); its pose in
+    the grip-site frame is watched for drift.
+    """
+    base = env.unwrapped
+    scene = base.scene
+    rec = Recording()
+    span_of = np.full(plan.n_steps, -1)
+    for k, span in enumerate(plan.spans):
+        span_of[span.start:span.end] = k
+    offsets: dict[int, np.ndarray] = {}
+    first_arc = plan.spans[0].start if plan.spans else plan.n_steps
+    info = {"is_success": False}
+    for i in range(plan.n_steps + config.extra_steps):
+        rec.obs.append(obs)
+        rec.states.append(base.get_state())
+        if i >= plan.n_steps:
+            action = np.zeros(7)
+            action[6] = plan.gripper[-1]
+        elif plan.source_step[i] >= 0 and (config.raw_prefix and i < first_arc):
+            action = np.asarray(source_actions[plan.source_step[i]], dtype=np.float64)
+        elif plan.source_step[i] >= 0:
+            pos, quat = scene.eef_pose()
+            action = source_goal_action(pos, quat_xyzw_to_mat(quat), plan.target_pos[i],
+                                        quat_xyzw_to_mat(plan.target_quat[i]), source_actions[plan.source_step[i]])
+        else:
+            pos, quat = scene.eef_pose()
+            action = tracking_action(pos, quat_xyzw_to_mat(quat), plan.target_pos[i + 1],
+                                     quat_xyzw_to_mat(plan.target_quat[i + 1]), plan.target_pos[i],
+                                     plan.gripper[i], config.lead)
+        rec.actions.append(action)
+        obs, _, _, _, info = base.step(action)
+        k = span_of[i] if i < plan.n_steps else -1
+        if k >= 0:
+            span = plan.spans[k]
+            pos, quat = scene.eef_pose()
+            arc = plan.target_pos[span.start:span.end + 1]
+            rec.max_deviation = max(rec.max_deviation, distance_to_polyline(pos, arc))
+            body = (held_body or {}).get(int(k))
+            if body is not None:
+                rec.max_offset_drift = max(rec.max_offset_drift, _offset_drift(scene, body, offsets, int(k)))
+        if info["is_success"]:
+            break
+    rec.success = bool(info["is_success"])
+    return rec
+
+
+def _offset_drift(scene, body: int, offsets: dict[int, np.ndarray], key: int) -> float:
+    """Distance the body moved in the grip-site frame since the span's first step."""
+    d = scene.data
+    rot = d.site_xmat[scene.eef_site].reshape(3, 3)
+    local = rot.T @ (d.xpos[body] - d.site_xpos[scene.eef_site])
+    if key not in offsets:
+        offsets[key] = local
+    return float(np.linalg.norm(local - offsets[key]))

@@ -1,0 +1,200 @@
+"""The augmentation run shared by every mode: input/output files, resume, progress bar and the report.
+
+A *mode* (``detaug`` here; ``demogen`` can be added the same way) is a module that provides
+
+    add_arguments(parser)                    # its own command-line options
+    make_config(namespace) -> config         # those options as a config object (with ``as_dict()``)
+    augment_source(env, demo, copies, rng, config, label_len) -> SourceResult
+
+and is registered in :data:`MODES` by import path, so only the chosen mode is imported.
+
+Output layout: the originals first (``label`` = zeros, ``augmented = False``), then per source its
+accepted copies (``augmented = True``, ``source_demo``, ``phi``/``theta`` per transit, ``transits``,
+``augment_params``), written through :class:`detaug_gym.data.DatasetWriter`. A sidecar JSON file
+(``<out>.progress.json``) lists the finished sources and the running statistics; on restart, sources
+already listed are skipped and copies of an unfinished source are dropped and redone.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+MODES = {"detaug": "detaug_gym.augment.detaug"}
+
+
+def load_mode(name: str):
+    """Import the mode module called ``name``; ``ValueError`` lists the valid names."""
+    if name not in MODES:
+        raise ValueError(f"unknown mode {name!r}; valid modes: {', '.join(MODES)}")
+    return importlib.import_module(MODES[name])
+
+
+@dataclass
+class RunStats:
+    """Counts over a whole run (also over resumed parts); saved in the sidecar file."""
+
+    suite: str = ""
+    sources: int = 0
+    requested: int = 0
+    accepted: int = 0
+    tries: int = 0
+    seconds: float = 0.0
+    reasons: Counter = field(default_factory=Counter)
+    done: list[str] = field(default_factory=list)
+
+    def add(self, name: str, copies: int, result) -> None:
+        self.sources += 1
+        self.requested += copies
+        self.accepted += len(result.demos)
+        self.tries += result.tries
+        self.seconds += result.seconds
+        self.reasons.update(result.reasons)
+        self.done.append(name)
+
+    def to_json(self) -> dict:
+        return {"suite": self.suite, "sources": self.sources, "requested": self.requested,
+                "accepted": self.accepted, "tries": self.tries, "seconds": self.seconds,
+                "reasons": dict(self.reasons), "done": self.done}
+
+    @classmethod
+    def from_json(cls, data: dict) -> RunStats:
+        stats = cls(**{k: v for k, v in data.items() if k != "reasons"})
+        stats.reasons = Counter(data.get("reasons", {}))
+        return stats
+
+    def report(self) -> str:
+        rate = 100.0 * self.accepted / self.tries if self.tries else 0.0
+        per_demo = self.seconds / self.accepted if self.accepted else float("nan")
+        reasons = ", ".join(f"{k} {v}" for k, v in self.reasons.most_common()) or "none"
+        return ("| suite | sources | copies accepted / requested | samples tried | acceptance | s per accepted demo |\n"
+                "|---|---:|---:|---:|---:|---:|\n"
+                f"| {self.suite} | {self.sources} | {self.accepted} / {self.requested} | {self.tries} | "
+                f"{rate:.1f}% | {per_demo:.1f} |\n\nrejections: {reasons}")
+
+
+def progress_path(out: Path) -> Path:
+    return out.with_name(out.name + ".progress.json")
+
+
+def read_progress(out: Path, suite: str) -> RunStats:
+    """The sidecar's statistics, or fresh ones when the output file does not exist yet."""
+    side = progress_path(out)
+    if out.exists() and side.exists():
+        return RunStats.from_json(json.loads(side.read_text()))
+    return RunStats(suite=suite)
+
+
+def write_progress(out: Path, stats: RunStats) -> None:
+    tmp = progress_path(out).with_suffix(".tmp")
+    tmp.write_text(json.dumps(stats.to_json(), indent=1))
+    tmp.replace(progress_path(out))
+
+
+def drop_unfinished(out: Path, done: set[str]) -> int:
+    """Delete augmented demos of sources not in ``done`` (an interrupted source is redone); returns how many."""
+    if not out.exists():
+        return 0
+    import h5py
+
+    dropped = 0
+    with h5py.File(out, "a") as f:
+        data = f.get("data")
+        if data is None:
+            return 0
+        for name in list(data):
+            attrs = data[name].attrs
+            if bool(attrs.get("augmented", False)) and str(attrs.get("source_demo", "")) not in done:
+                del data[name]
+                dropped += 1
+    return dropped
+
+
+def existing_originals(out: Path) -> set[str]:
+    """Names of the source demos already copied into ``out`` as originals."""
+    if not out.exists():
+        return set()
+    import h5py
+
+    with h5py.File(out, "r") as f:
+        data = f.get("data", {})
+        return {str(data[n].attrs.get("source_demo", "")) for n in data
+                if not bool(data[n].attrs.get("augmented", True))}
+
+
+def original_copy(demo, label_len: int):
+    """The source demo as written to the output: label zeros, marked as an original."""
+    from dataclasses import replace
+
+    attrs = {k: v for k, v in demo.attrs.items() if k != "num_samples"}
+    attrs.update({"source_demo": demo.name, "augmented": False})
+    return replace(demo, attrs=attrs, label=np.zeros(label_len, dtype=np.float32))
+
+
+def source_rng(seed: int, index: int) -> np.random.Generator:
+    """Per-source generator: results do not depend on which sources a resumed run skips."""
+    return np.random.default_rng([int(seed), int(index)])
+
+
+@dataclass
+class RunArgs:
+    """What ``python -m detaug_gym.augment`` was asked to do (mode-specific options live in ``config``)."""
+
+    inp: Path
+    out: Path
+    copies: int
+    mode: str
+    config: object
+    seed: int = 0
+    limit: int | None = None
+
+
+def run(args: RunArgs, progress: bool = True) -> RunStats:
+    """Augment every source demo of ``args.inp`` into ``args.out`` (resumable); returns the run's statistics."""
+    import gymnasium as gym
+    from tqdm import tqdm
+
+    import detaug_gym  # noqa: F401  (registers the env ids)
+    from detaug_gym.data import DatasetWriter, load
+
+    mode = load_mode(args.mode)
+    dataset = load(args.inp)
+    env_args = dict(dataset.attrs.get("env_args") or {})
+    env_id = env_args.get("env_name") or dataset.demos[0].attrs["env_id"]
+    label_len = mode.label_size(env_id)
+    sources = [d for d in dataset.demos if not d.attrs.get("augmented", False)][:args.limit]
+    stats = read_progress(args.out, mode.suite_of(env_id))
+    done = set(stats.done)
+    drop_unfinished(args.out, done)
+    env = gym.make(env_id, **env_args.get("env_kwargs", {}))
+    try:
+        with DatasetWriter(args.out, env_args) as writer:
+            present = existing_originals(args.out)
+            for demo in sources:
+                if demo.name not in present:
+                    writer.append(original_copy(demo, label_len))
+            todo = [(i, d) for i, d in enumerate(sources) if d.name not in done]
+            bar = tqdm(todo, desc=f"{args.mode} {env_id}", unit="demo", disable=not progress,
+                       initial=len(sources) - len(todo), total=len(sources))
+            for index, demo in bar:
+                result = mode.augment_source(env, demo, args.copies, source_rng(args.seed, index), args.config,
+                                             label_len)
+                for new in result.demos:
+                    writer.append(new)
+                stats.add(demo.name, args.copies, result)
+                write_progress(args.out, stats)
+                bar.set_postfix(accepted=stats.accepted, tried=stats.tries)
+            bar.close()
+    finally:
+        env.close()
+    return stats
+
+
+def elapsed(start: float) -> str:
+    return f"{time.perf_counter() - start:.0f} s"
