@@ -180,6 +180,7 @@ def run(args: RunArgs, progress: bool = True) -> RunStats:
                 if demo.name not in present:
                     writer.append(original_copy(demo, label_len))
             todo = [(i, d) for i, d in enumerate(sources) if d.name not in done]
+            todo.sort(key=lambda item: round_robin_key(sources, item[0]))
             bar = tqdm(todo, desc=f"{args.mode} {env_id}", unit="demo", disable=not progress,
                        initial=len(sources) - len(todo), total=len(sources))
             for index, demo in bar:
@@ -194,6 +195,14 @@ def run(args: RunArgs, progress: bool = True) -> RunStats:
     finally:
         env.close()
     return stats
+
+
+def round_robin_key(sources: list, index: int) -> tuple[int, int]:
+    """Order sources task by task in turn (first demo of every task, then the second, ...), so that an
+    interrupted or time-boxed run has augmented every task about equally."""
+    task = int(sources[index].attrs.get("task", 0))
+    rank = sum(int(d.attrs.get("task", 0)) == task for d in sources[:index])
+    return rank, task
 
 
 def elapsed(start: float) -> str:
