@@ -8,6 +8,9 @@ A policy drives one environment. The bench (the only rollout loop in the project
 ``act`` returns one action in env units: ``np.ndarray`` of shape ``(7,)``, float32, OSC_POSE delta in
 ``[-1, 1]`` plus the gripper command (-1 open, +1 close).
 
+Constructors take keyword options; the bench always passes ``suite=<suite name>`` (policies that do not
+need it accept and ignore it) and a policy fails in its constructor, not mid-rollout, when misconfigured.
+
 Chunking policies (the flow-matching ones) plan ``horizon`` steps, execute the first ``action_steps`` of
 the plan from an internal queue and replan when the queue runs dry; ``reset`` clears the queue.
 
