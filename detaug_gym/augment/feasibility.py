@@ -8,8 +8,9 @@ A sample is rejected (the reason names the first failed check, in this order):
   rad/s^2), which also catches an IK branch flip between neighbouring targets;
 - ``collision``: at some IK configuration the robot or the held object penetrates anything else by more
   than ``penetration`` (MuJoCo contacts on a scratch ``MjData``). Gripper-held-object contacts are the
-  grasp itself and never count; contacts already present in the source at the transit's two endpoints
-  (the bowl resting on the table when the carry starts, on the plate when it ends) are allowed.
+  grasp itself and never count; contact pairs already present in the source at the transit's two
+  endpoints (the bowl resting on the table when the carry starts, on the plate when it ends) are tolerated
+  down to ``allowed_depth`` (1 cm) of penetration.
 
 The held object is found from the source: the free body that moves with the end effector during the
 carry. During the planned carry it is placed rigidly at the end effector with the offset it had at the

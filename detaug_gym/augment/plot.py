@@ -44,8 +44,9 @@ def plot_arcs(demos, path: str | Path, panels: int = 3, variants: int = 6,
         seg = segment_gripper(orig.gripper_command, cfg)
         for g in seg.grasps:
             _mark_window(ax, p, g.close, cfg.window, "tab:red", "grasp window")
-            if g.release is not None:
-                _mark_window(ax, p, g.release, cfg.window, "tab:blue", "release window")
+            # a demo that ends holding (the success check fired on placement) releases at its last frame
+            release = g.release if g.release is not None else len(p) - 1
+            _mark_window(ax, p, release, cfg.window, "tab:blue", "release window")
         ax.set_title(f"{orig.attrs.get('task_key', orig.name)} ({len(augmented)} variants)", fontsize=9)
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
