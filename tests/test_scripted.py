@@ -25,6 +25,7 @@ PLATE = [0.05, 0.2, 0.903, 0, 0, 0.7071, 0.7071]
 
 @pytest.mark.parametrize(("obs", "expected"), [
     (_obs([BOWL, PLATE]), "bowl_on_plate"),
+    (_obs([BOWL, [0.05, -0.02, 0.903, 0, 0, 0.7071, 0.7071]], 5, 0), "goal_bowl_on_plate"),
     (_obs([BOWL, [0.019, -0.259, 1.127, 0, 0, 1, 0]], 5, 1), "bowl_on_cabinet"),
     (_obs([BOWL, [-0.259, 0.209, 0.905, 0, 0, 0, 1]], 5, 2), "bowl_on_stove"),
     (_obs([BOWL, [0.019, -0.255, 1.091, -0.7071, 0, 0.7071, 0]], 4, 3), "drawer_bowl"),

@@ -24,7 +24,7 @@ via-point jitter on the transits. The expert ignores obstacles: on L1/L2 it driv
 from __future__ import annotations
 
 from collections.abc import Generator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
@@ -32,6 +32,7 @@ import numpy as np
 from detaug_gym.policies.scripted_tasks import (
     DRAWER_HANDLE,
     DRAWER_OPEN_DIR,
+    DRAWER_STAGE,
     DRAWER_TRAVEL,
     OBJECTS,
     RECIPES,
@@ -44,6 +45,7 @@ from detaug_gym.policies.scripted_tasks import (
 POS_SCALE = 0.05  # m per unit action (OSC_POSE output_max)
 ROT_SCALE = 0.5  # rad per unit action
 OPEN, CLOSE = -1.0, 1.0
+TRANSIT_Z = 1.21  # kitchen scenes: grip-site height that keeps the hand above the drawer and the wine bottle
 # Grip-site orientation with the fingers pointing down and closing along world y (xyzw 0.7071, 0.7071, 0, 0).
 R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
@@ -126,14 +128,17 @@ class ScriptedExpert:
         self._grip = OPEN
         self._last = np.zeros(7, dtype=np.float32)
         self._home = np.zeros(3)
+        self._start_poses = np.zeros((0, 7))
         self.trace: list[tuple[str, int, bool]] = []  # (primitive, steps, reached) for debugging
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         self._obs = obs
         if self._script is None:
             self.recipe = RECIPES[self.task or identify_task(obs)]
+            self.style = replace(self.style, speed=self.style.speed * self.recipe.tempo)
             self._yaw = self._current_yaw()
             self._home = self._eef()
+            self._start_poses = np.array(obs["object_poses"], dtype=np.float64)
             self._script = self._run(self.recipe)
         try:
             self._last = next(self._script)
@@ -144,29 +149,44 @@ class ScriptedExpert:
     # ------------------------------------------------------------------ the script
     def _run(self, recipe: Recipe) -> Actions:
         if recipe.open_drawer:
+            yield from self._stage_for_drawer(recipe.steps[0])
             yield from self._open_drawer(recipe.steps[0].target_slot)
+        transit_z = TRANSIT_Z if recipe.open_drawer else None
         for step in recipe.steps:
-            offset = yield from self._pick(step)
+            offset = yield from self._pick(step, transit_z=transit_z)
             yield from self._place(step, offset)
+            # leaving a container: arc over its rim (the servo lags the curve, hence the margin)
+            transit_z = self._eef()[2] + 0.06 if TARGETS[step.target].rim is not None else None
         while True:  # hold still, gripper open, until the env ends the episode
             yield self._servo(self._eef(), OPEN)
 
-    def _pick(self, step: Step) -> Generator[np.ndarray, None, np.ndarray]:
-        """Grasp the object in ``step.obj_slot`` and lift it; returns the grasp offset (eef - object)."""
+    def _pick(self, step: Step, lift: float | None = None, transit_z: float | None = None,
+              ) -> Generator[np.ndarray, None, np.ndarray]:
+        """Grasp the object in ``step.obj_slot`` and lift it; returns the grasp offset (eef - object).
+
+        ``lift`` (m above the grasp) replaces the default lift to the carry height (short hops);
+        ``transit_z``: first go over the pre-grasp point at this height, turning the hand there, then down.
+        """
         style = self.style
         for attempt in range(4):
             grasp, yaw = self._grasp_pose(step, attempt)
             start_z = self._pose(step.obj_slot)[2]
-            yield from self._move(grasp + [0, 0, style.approach], yaw, OPEN, style.speed, tol=0.01, via=True)
+            pre = grasp + [0, 0, style.approach]
+            # with a transit height: arc over, staying high until above the object
+            over = None if transit_z is None else np.r_[pre[:2], max(transit_z, self._eef()[2])]
+            yield from self._move(pre, yaw, OPEN, style.speed, tol=0.01, via=over is None, pitch=0.0, mid=over)
             grasp, yaw = self._grasp_pose(step, attempt)
             yield from self._move(grasp, yaw, OPEN, 0.6 * style.speed, tol=0.004)
             yield from self._gripper(CLOSE)
             offset = self._eef() - self._pose(step.obj_slot)[:3]
-            lift_z = max(grasp[2] + style.lift, self._above_place(step, offset)[2])
+            if lift is None:
+                lift_z = max(grasp[2] + style.lift, self._above_place(step, offset)[2])
+            else:
+                lift_z = grasp[2] + lift
             slipped = partial(self._slipped, step.obj_slot, offset[2])
-            yield from self._move(np.r_[grasp[:2], lift_z], yaw, CLOSE, 0.8 * style.speed, tol=0.02,
-                                  check=slipped)
-            if self._pose(step.obj_slot)[2] - start_z > 0.03 and not slipped():
+            yield from self._move(np.r_[grasp[:2], lift_z], yaw, CLOSE, 0.8 * style.speed,
+                                  tol=0.02 if lift is None else 0.006, check=slipped)
+            if self._pose(step.obj_slot)[2] - start_z > 0.6 * min(lift_z - grasp[2], 0.05) and not slipped():
                 return offset
             yield from self._gripper(OPEN)
             yield from self._move(self._eef() + [0, 0, 0.06], yaw, OPEN, style.speed, tol=0.02)
@@ -184,7 +204,39 @@ class ScriptedExpert:
         release = self._place_eef(step, offset)
         yield from self._move(release, self._yaw, CLOSE, 0.5 * style.speed, tol=0.005)
         yield from self._gripper(OPEN)
-        yield from self._move(self._eef() + [0, 0, 0.08], self._yaw, OPEN, 0.8 * style.speed, tol=0.02)
+        retreat = self._eef() + [0, 0, 0.08]
+        place = TARGETS[step.target]
+        if place.rim is not None:  # fingertips well above the rim before moving sideways
+            retreat[2] = max(retreat[2], self._pose(step.target_slot)[2] + place.rim + 0.05)
+        yield from self._move(retreat, self._yaw, OPEN, 0.8 * style.speed, tol=0.02)
+
+    def _stage_for_drawer(self, step: Step) -> Actions:
+        """Move the object (the bowl) from under where the drawer will open to :data:`DRAWER_STAGE`.
+
+        Grasped on its +y side (the hand then spans y, clear of the wine bottle at -x), lifted 2.5 cm,
+        carried low and put down; the release leaves the hand above the rim.
+        """
+        style = self.style
+        hop = replace(step, rim_prefer=(0.0, 1.0), rim_away=0.0, rim_jitter=0.3)
+        start_z = self._pose(step.obj_slot)[2]
+        offset = yield from self._pick(hop, lift=0.025)
+        stage = self._start_poses[step.target_slot][:2] + DRAWER_STAGE
+        down = np.r_[stage, start_z + 0.004] + offset
+        yield from self._move(down + [0, 0, 0.02], self._yaw, CLOSE, 0.8 * style.speed, tol=0.01)
+        yield from self._move(down, self._yaw, CLOSE, 0.5 * style.speed, tol=0.006)
+        yield from self._release()
+        yield from self._move(self._eef() + [0, 0, 0.05], self._yaw, OPEN, style.speed, tol=0.02)
+
+    def _release(self, gap: float = 0.03) -> Actions:
+        """Open the fingers until they have moved ``gap`` apart (or are fully open)."""
+        hold, start = self._eef(), self._width()
+        steps = 0
+        while steps < 16:
+            yield self._servo(hold, OPEN)
+            steps += 1
+            if self._width() - start > gap or self._width() > 0.075:
+                break
+        self.trace.append(("grip", steps, True))
 
     def _open_drawer(self, site_slot: int) -> Actions:
         """Grasp the top drawer's handle with the hand pitched towards the cabinet and pull it open."""
@@ -193,18 +245,17 @@ class ScriptedExpert:
         rot = quat_to_mat(site[3:])
         handle = site[:3] + rot @ DRAWER_HANDLE
         pull = rot @ DRAWER_OPEN_DIR
-        pre = handle + 0.08 * pull + [0, 0, 0.04]
-        yield from self._move(pre, 0.0, OPEN, style.speed, tol=0.01, pitch=np.pi / 2)
-        yield from self._move(handle + 0.07 * pull, 0.0, OPEN, 0.6 * style.speed, tol=0.006, pitch=np.pi / 2)
-        yield from self._move(handle - 0.005 * pull, 0.0, OPEN, 0.4 * style.speed, tol=0.005, pitch=np.pi / 2)
+        yield from self._move(handle + 0.07 * pull + [0, 0, 0.02], 0.0, OPEN, style.speed, tol=0.015,
+                              pitch=np.pi / 2)
+        yield from self._move(handle - 0.005 * pull, 0.0, OPEN, 0.5 * style.speed, tol=0.005, pitch=np.pi / 2)
         yield from self._gripper(CLOSE)
-        yield from self._move(handle + DRAWER_TRAVEL * pull, 0.0, CLOSE, 0.5 * style.speed, tol=0.01,
+        yield from self._move(handle + DRAWER_TRAVEL * pull, 0.0, CLOSE, 0.7 * style.speed, tol=0.01,
                               pitch=np.pi / 2)
-        yield from self._gripper(OPEN)
-        yield from self._move(self._eef() + 0.06 * pull + [0, 0, 0.06], 0.0, OPEN, 0.6 * style.speed, tol=0.02,
-                              pitch=np.pi / 2)
-        # back to the start pose (hand down again) before the pick: untwists the wrist after the pull
-        yield from self._move(self._home, 0.0, OPEN, 0.6 * style.speed, tol=0.03, pitch=0.0)
+        yield from self._release()
+        # back out along the pull, then up to the transit height turning the hand down: the fingers must not
+        # sweep over the drawer front (that pushes it shut again)
+        yield from self._move(self._eef() + 0.05 * pull, 0.0, OPEN, style.speed, tol=0.015)
+        yield from self._move(np.r_[self._eef()[:2], TRANSIT_Z], 0.0, OPEN, style.speed, tol=0.03, pitch=0.0)
 
     # ------------------------------------------------------------------ geometry
     def _grasp_pose(self, step: Step, attempt: int = 0) -> tuple[np.ndarray, float]:
@@ -222,14 +273,19 @@ class ScriptedExpert:
             home /= max(np.linalg.norm(home), 1e-9)
             away = centre[:2] - self._pose(step.target_slot)[:2]
             away *= step.rim_away / max(np.linalg.norm(away), 1e-9)
-            jitter = self.style.rim_angle + 0.3 * attempt
+            jitter = step.rim_jitter * self.style.rim_angle + 0.3 * attempt
+            prefer = np.zeros(2) if step.rim_prefer is None else 4.0 * np.asarray(step.rim_prefer)
             best_score, point, direction = -np.inf, None, None
-            for a in spec.rim_dirs:
+            dirs = spec.rim_dirs
+            if step.rim_prefer is not None and len(dirs) == 8:  # round cup: any wall point, so the preferred one
+                local = rot.T @ np.array([*step.rim_prefer, 0.0])
+                dirs = (float(np.arctan2(local[1], local[0])),)
+            for a in dirs:
                 local = np.array([np.cos(a + jitter), np.sin(a + jitter), 0.0])
                 radial = rot @ local
                 flat = np.array([radial[0], radial[1], 0.0]) / max(np.linalg.norm(radial[:2]), 1e-9)
                 yaw = _wrap_yaw(np.arctan2(flat[1], flat[0]) - np.pi / 2, self._yaw)
-                score = float((home + away) @ flat[:2]) - abs(yaw - self._yaw)  # big wrist turns strain the arm
+                score = float((home + away + prefer) @ flat[:2]) - abs(yaw - self._yaw)  # big turns strain the arm
                 if score > best_score:
                     best_score, direction = score, flat
                     point = centre + rot @ (spec.rim_radius * local + np.array([0.0, 0.0, spec.height + dz]))
@@ -261,16 +317,21 @@ class ScriptedExpert:
         target = self._pose(step.target_slot)
         rot = quat_to_mat(target[3:])
         point = target[:3] + rot @ np.array([*place.offset, 0.0])
-        point[:2] += self.style.place_jitter
+        point[:2] += np.asarray(place.world_offset) + np.asarray(step.place_shift) + self.style.place_jitter
         point[2] = target[2] + place.surface + place.clearance + spec.bottom
-        return point + offset
+        eef = point + offset
+        if place.hand_floor is not None:  # the hand cannot go into the container: drop from above its rim
+            eef[2] = max(eef[2], target[2] + place.hand_floor)
+        return eef
 
     # ------------------------------------------------------------------ motion primitives
     def _move(self, goal: np.ndarray, yaw: float, grip: float, speed: float, tol: float, via: bool = False,
-              pitch: float | None = None, check=None, timeout: int = 40) -> Actions:
+              pitch: float | None = None, check=None, timeout: int = 40, mid: np.ndarray | None = None,
+              ) -> Actions:
         """Straight (or gently bent) minimum-jerk line to ``goal``; ends once within ``tol`` of it.
 
         ``check`` (optional) is called every step; returning True aborts the move (e.g. lost object).
+        ``mid``: the Bezier control point (default the midpoint: a straight line).
         """
         start = self._eef()
         goal = np.asarray(goal, dtype=np.float64)
@@ -279,15 +340,17 @@ class ScriptedExpert:
         dist = float(np.linalg.norm(goal - start))
         turn = max(abs(yaw - yaw0), abs(pitch - pitch0))
         steps = max(int(np.ceil(dist / speed)), int(np.ceil(turn / 0.12)), 3)
-        mid = 0.5 * (start + goal)
+        mid = 0.5 * (start + goal) if mid is None else np.asarray(mid, dtype=np.float64)
         if via and dist > 0.15:
             mid[:2] += self.style.via
         recent: list[np.ndarray] = []
+        lead = self.recipe.lead if self.recipe is not None else 0
         for t in range(1, steps + timeout + 1):
-            s = _min_jerk(min(t / steps, 1.0))
+            s = _min_jerk(min((t + lead) / steps, 1.0))  # a lead of a few steps offsets the servo's lag
             carrot = _bezier(start, mid, goal, s)
-            self._yaw = yaw0 + (yaw - yaw0) * s
-            self._pitch = pitch0 + (pitch - pitch0) * s
+            turn_s = min(1.0, 1.4 * s)  # finish turning the hand before arriving
+            self._yaw = yaw0 + (yaw - yaw0) * turn_s
+            self._pitch = pitch0 + (pitch - pitch0) * turn_s
             yield self._servo(carrot, grip)
             if t >= steps and np.linalg.norm(self._eef() - goal) < tol and self._rotation_error() < 0.15:
                 self.trace.append(("move", t, True))

@@ -75,21 +75,29 @@ class PlaceSpec:
         offset: body-frame xy offset of the place point from the target origin.
         rim: height above the target's origin that the object's bottom must clear before the final descent
             (container walls); ``None``: the surface.
+        world_offset: world-frame xy shift of the place point (for targets whose frame is tilted).
+        hand_floor: lowest grip-site height above the target's origin at the release (a container whose
+            opening is narrower than the 0.21 m hand: the object is let go above it and drops in).
     """
 
     surface: float
     clearance: float = 0.008
     offset: tuple[float, float] = (0.0, 0.0)
     rim: float | None = None
+    world_offset: tuple[float, float] = (0.0, 0.0)
+    hand_floor: float | None = None
 
 
 TARGETS: dict[str, PlaceSpec] = {
     "plate": PlaceSpec(surface=0.0164),
     "cabinet_top": PlaceSpec(surface=0.0),  # wooden_cabinet_1_top_side is the top face
     "stove": PlaceSpec(surface=0.0),  # flat_stove_1_cook_region: the burner plate
-    # drawer floor / walls around the site; the offset (site frame, = world +y) keeps the bowl off the cabinet front
-    "drawer": PlaceSpec(surface=-0.027, clearance=0.012, rim=0.035, offset=(0.0, -0.012)),
-    "basket": PlaceSpec(surface=-0.045, clearance=0.02, rim=0.074),  # region centre; wicker rim 0.074 above
+    # Drawer floor / walls around the site. The site is the drawer's centre; opened 0.15 m, the part outside the
+    # cabinet is y in [-0.166, -0.022] (world), so the bowl (rim radius 0.061) goes 0.012 m in front of the
+    # site; +x keeps the fingers (on the bowl's -x side) off the drawer's left wall.
+    "drawer": PlaceSpec(surface=-0.027, clearance=0.012, rim=0.065, world_offset=(0.015, 0.012)),
+    # region centre; wicker rim 0.074 above; the hand's underside sits 0.024 above the grip site
+    "basket": PlaceSpec(surface=-0.045, clearance=0.02, rim=0.074, hand_floor=0.074 - 0.024 + 0.012),
     "bowl": PlaceSpec(surface=0.012, clearance=0.02, rim=0.052),  # cream cheese into the bowl
     "table_region": PlaceSpec(surface=0.0268, offset=(0.0, 0.02)),  # plate-right region of Long task 3
     "disc": PlaceSpec(surface=0.0),  # Newton target disc (origin on the table top)
@@ -100,6 +108,11 @@ TARGETS: dict[str, PlaceSpec] = {
 DRAWER_HANDLE = np.array([0.0017, -0.1129, -0.0061])
 DRAWER_OPEN_DIR = np.array([0.0, -1.0, 0.0])
 DRAWER_TRAVEL = 0.15
+# Opened, the drawer's front reaches y = -0.016 and its left wall x = -0.09: its corner sits within 2-3 cm of
+# the bowl's start (x -0.104..-0.075, y -0.014..0.015), where any top-down rim grasp puts the 0.21 m wide hand.
+# So the bowl is first moved here (world xy, relative to the closed drawer's site): clear of the drawer, the
+# wine bottle (x < -0.166, y < -0.013), the stove and the cream cheese (x > -0.11, y > 0.089).
+DRAWER_STAGE = np.array([-0.171, 0.307])
 
 
 @dataclass(frozen=True)
@@ -107,7 +120,10 @@ class Step:
     """One pick-and-place of a recipe: slots index ``object_poses``.
 
     ``rim_away`` (rim grasps) favours wall points facing away from the target, for targets that crowd the
-    object's near side (the opened drawer reaches the bowl).
+    object's near side. ``rim_prefer`` (world xy direction from the cup axis) picks the wall point on that
+    side whatever the wrist turn, and ``rim_jitter`` scales the per-demo rim-angle jitter (tight scenes).
+    ``place_shift`` (world xy) moves the place point, so two objects put in one container do not land on
+    each other.
     """
 
     obj_slot: int
@@ -115,15 +131,24 @@ class Step:
     target_slot: int
     target: str
     rim_away: float = 0.0
+    rim_prefer: tuple[float, float] | None = None
+    rim_jitter: float = 1.0
+    place_shift: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)
 class Recipe:
-    """The expert's plan for one task: optionally open the top drawer first, then the pick-and-places."""
+    """The expert's plan for one task: optionally open the top drawer first, then the pick-and-places.
+
+    ``tempo`` scales the demo's transit speed and ``lead`` (steps) runs the servo target ahead of the
+    minimum-jerk profile, so moves end sooner (the drawer task has three stages in LIBERO's 300 steps).
+    """
 
     key: str
     steps: tuple[Step, ...]
     open_drawer: bool = False
+    tempo: float = 1.0
+    lead: int = 0
 
 
 def _single(key: str, obj: str, target: str, **kw) -> Recipe:
@@ -132,17 +157,25 @@ def _single(key: str, obj: str, target: str, **kw) -> Recipe:
 
 RECIPES: dict[str, Recipe] = {
     "bowl_on_plate": _single("bowl_on_plate", "bowl", "plate"),
+    # Goal scene: the cabinet front is 0.1 m on the bowl's -y side; a hand on that side hits it in the carry
+    "goal_bowl_on_plate": Recipe("goal_bowl_on_plate", (Step(0, "bowl", 1, "plate", rim_prefer=(0.0, 1.0)),)),
     "bowl_on_cabinet": _single("bowl_on_cabinet", "bowl", "cabinet_top"),
     "bowl_on_stove": _single("bowl_on_stove", "bowl", "stove"),
-    "drawer_bowl": Recipe("drawer_bowl", (Step(0, "bowl", 1, "drawer", rim_away=2.0),), open_drawer=True),
+    # after the drawer is open the bowl is grasped on its -x side: the fingers then stay clear of the drawer walls
+    "drawer_bowl": Recipe("drawer_bowl", (Step(0, "bowl", 1, "drawer", rim_prefer=(-1.0, 0.0), rim_jitter=0.3),),
+                          open_drawer=True, tempo=1.3, lead=2),
     "cream_cheese_in_bowl": _single("cream_cheese_in_bowl", "cream_cheese", "bowl"),
     "orange_juice": _single("orange_juice", "carton", "basket"),
     "chocolate_pudding": _single("chocolate_pudding", "pudding", "basket"),
     "milk": _single("milk", "carton", "basket"),
     "bbq_sauce": _single("bbq_sauce", "bbq_sauce", "basket"),
-    "soup_cheese_basket": Recipe("soup_cheese_basket", (Step(0, "can", 1, "basket"),
-                                                        Step(2, "cream_cheese", 1, "basket"))),
-    "soup_sauce_basket": Recipe("soup_sauce_basket", (Step(0, "can", 1, "basket"), Step(2, "can", 1, "basket"))),
+    # two objects into the basket (contain region +-0.061 m): the first to the far side, the second near
+    "soup_cheese_basket": Recipe("soup_cheese_basket", (
+        Step(0, "can", 1, "basket", place_shift=(0.03, 0.0)),
+        Step(2, "cream_cheese", 1, "basket", place_shift=(-0.025, 0.0)))),
+    "soup_sauce_basket": Recipe("soup_sauce_basket", (
+        Step(0, "can", 1, "basket", place_shift=(0.03, 0.0)),
+        Step(2, "can", 1, "basket", place_shift=(-0.03, 0.0)))),
     "mugs_on_plates": Recipe("mugs_on_plates", (Step(0, "porcelain_mug", 1, "plate"),
                                                 Step(2, "white_yellow_mug", 3, "plate"))),
     "mug_plate_pudding": Recipe("mug_plate_pudding", (Step(0, "porcelain_mug", 1, "plate"),
@@ -164,7 +197,8 @@ def identify_task(obs: dict[str, np.ndarray]) -> str:
     Uses only the observation: the Newton env has one task; the Long suite has four object slots; the
     Object suite's scene is LIBERO's floor scene (objects near z = 0); the kitchen scenes (Spatial, Goal)
     are told apart by the target's pose, which is fixed per task (cabinet top, stove, drawer region) or by
-    the object to pick (the cream cheese lies at yaw 180 deg, the bowls at 90 deg).
+    the object to pick (the cream cheese lies at yaw 180 deg, the bowls at 90 deg); the plate's place tells
+    Goal's bowl-on-plate from Spatial's.
 
     Raises:
         ValueError: the observation matches no known task.
@@ -189,4 +223,6 @@ def identify_task(obs: dict[str, np.ndarray]) -> str:
         return "bowl_on_stove"
     if _quat_close(obj[3:], (0.0, 0.0, 1.0, 0.0)):
         return "cream_cheese_in_bowl"
+    if target[1] < 0.1:  # Goal's plate stands in front of the cabinet (y ~ -0.02); Spatial's at y ~ 0.2
+        return "goal_bowl_on_plate"
     return "bowl_on_plate"
