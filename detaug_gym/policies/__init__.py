@@ -17,6 +17,8 @@ register_policy("random", "detaug_gym.policies.random_policy:RandomPolicy", "uni
 register_policy("scripted", "detaug_gym.policies.scripted:ScriptedExpert", "privileged scripted pick-and-place expert")
 register_policy("base", "detaug_gym.policies.flow_base:BaseFlowPolicy", "flow policy on unaugmented demos, no label")
 register_policy("detaug", "detaug_gym.policies.detaug:DetAugPolicy", "DetAug: K-label selection by collision cost")
+register_policy("aegis", "detaug_gym.policies.aegis:AegisPolicy", "AEGIS: CBF-QP safety filter around another policy")
+register_policy("cape", "detaug_gym.policies.cape:CapePolicy", "CAPE: re-noise the plan remainder, collision guidance")
 
 
 def load(path, **options):

@@ -1,0 +1,189 @@
+"""CAPE: receding-horizon re-noising of the frozen ``base`` flow policy with collision guidance.
+
+Each episode starts with a plan sampled from noise (flow time 0 -> 1, guidance in the late steps). Then,
+every ``prefix_steps`` (2) env steps:
+
+1. the unexecuted remainder of the previous plan is shifted to start now (:func:`shift_plan`: drop the
+   executed prefix, pad the end like the training windows);
+2. it is re-noised to flow time ``t_start = 1 - delta`` (0.92 here, delta = 0.08 in CAPE's convention; our
+   flow runs from t = 0 noise to t = 1 data), with the current robot state inpainted as always;
+3. the remaining Euler steps are integrated (``refine_steps``; default the steps a ``flow_steps``
+   schedule has left after ``t_start``: 1 of 10) with guidance ``x <- x - lambda grad cost`` at every step
+   with ``t >= chi`` (``guidance_t_min`` 0.8: every refine step, and the last two of a fresh plan);
+4. the first ``prefix_steps`` actions of the result are executed.
+
+Cost: hinge ``sum max(0, r + margin - sdf(centre))`` over the end-effector spheres
+(:class:`~detaug_gym.geometry.RobotSpheres`: three spheres of radius ``sphere_radius`` over the palm and the
+fingers) and the plan steps, with the shared FK and obstacle SDF (``detaug_gym.geometry``; the state term
+equals ``plan_collision_cost(..., kind="spheres")``). A plan here holds joint states *and* OSC actions,
+and only the actions are executed, so the cost is evaluated twice (``guide="both"``):
+
+- ``states``: spheres placed by FK of the plan's joint states; its gradient moves the states, which
+  reaches the actions only through later network evaluations (none after the last Euler step);
+- ``actions``: the same spheres carried along the end-effector path the plan's actions command,
+  ``p_{t+1} = p_t + gain * 0.05 * a_t[:3]`` (``action_gain`` 0.25: the fraction of the commanded 5 cm a
+  step that the OSC controller achieves at steady state, measured on the Spatial env), with the hand's
+  orientation from FK; its gradient moves the executed actions away from the obstacle.
+
+Without an obstacle (mask 0) there is no guidance; the re-noising still happens.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from detaug_gym.geometry.costs import DEFAULT_MARGIN, sphere_cost
+from detaug_gym.geometry.robot_points import EEF_SPHERE_RADIUS, RobotGeometry, RobotSpheres
+from detaug_gym.geometry.sdf import ObstacleSDF, obstacle_sdf, quat_xyzw_to_matrix
+from detaug_gym.models.flow import Guidance
+from detaug_gym.models.policy import FlowPolicy, load_checkpoint, shift_plan, zoo_dir
+
+GUIDE_TARGETS = ("both", "states", "actions")
+POSITION_SCALE = 0.05  # m per action unit (OSC_POSE)
+
+
+@dataclass(frozen=True)
+class CapeStep:
+    """One replan: ``fresh`` (sampled from noise) or re-noised, whether guidance acted, and the cost of
+    the result (NaN unless ``track_cost``)."""
+
+    fresh: bool
+    guided: bool
+    cost: float
+
+
+class CapePolicy(FlowPolicy):
+    """CAPE on a flow checkpoint (default ``policies/base/<suite>/``).
+
+    Args:
+        suite: zoo suite folder of the ``base`` policy.
+        checkpoint: a checkpoint folder instead of the zoo's.
+        prefix_steps: actions executed from each plan before re-noising the rest (CAPE: ~2).
+        t_start: flow time the remainder is re-noised to (1 - delta; 0.92).
+        refine_steps: Euler steps from ``t_start`` to 1 (default: what ``flow_steps`` leaves, at least 1).
+        guidance_scale: lambda, the gradient step (in normalised plan coordinates).
+        guidance_t_min: chi, guidance acts at flow times ``t >= chi``.
+        sphere_radius: radius (m) of the end-effector spheres (CAPE: 0.06-0.08).
+        margin: hinge margin (m) added to the radius.
+        guide: ``"both"``, ``"states"`` or ``"actions"``: which part of the plan the cost sees (module doc).
+        action_gain: achieved fraction of the commanded displacement per step (``actions`` term).
+        track_cost: record the cost of every executed plan in ``diagnostics`` (one more FK pass per replan).
+        **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``flow_steps``, ``seed``, ...).
+    """
+
+    def __init__(self, suite: str = "spatial", checkpoint: str | None = None, prefix_steps: int = 2,
+                 t_start: float = 0.92, refine_steps: int | None = None, guidance_scale: float = 3.0,
+                 guidance_t_min: float = 0.8, sphere_radius: float = EEF_SPHERE_RADIUS,
+                 margin: float = DEFAULT_MARGIN["spheres"], guide: str = "both", action_gain: float = 0.25,
+                 track_cost: bool = False, **options) -> None:
+        if "action_steps" in options:
+            raise ValueError("CAPE executes prefix_steps actions per plan; pass prefix_steps, not action_steps")
+        _check_options(t_start, refine_steps, guidance_scale, guidance_t_min, sphere_radius, margin, guide,
+                       action_gain)
+        ckpt = load_checkpoint(checkpoint or zoo_dir("base", suite))
+        if not 1 <= prefix_steps < ckpt.network.config.dit.horizon:
+            raise ValueError(f"prefix_steps must lie in [1, horizon), got {prefix_steps}")
+        super().__init__(ckpt, action_steps=prefix_steps, **options)
+        self.t_start, self.refine_steps = float(t_start), refine_steps
+        self.guidance_scale, self.guidance_t_min = float(guidance_scale), float(guidance_t_min)
+        self.margin, self.guide, self.action_gain = float(margin), guide, float(action_gain)
+        panda = RobotGeometry.panda()
+        spheres = RobotSpheres.end_effector(panda.kinematics, radius=float(sphere_radius))
+        self.robot = RobotGeometry(panda.kinematics, panda.points, spheres)
+        self.track_cost = track_cost
+        self.diagnostics: list[CapeStep] = []
+        self._previous: torch.Tensor | None = None
+        self._shape: tuple[np.ndarray, ObstacleSDF] | None = None  # last obstacle (local points, SDF)
+
+    @property
+    def prefix_steps(self) -> int:
+        return self.action_steps
+
+    def reset(self, seed: int | None = None) -> None:
+        super().reset(seed)
+        self._previous = None
+        self.diagnostics = []
+
+    def next_plan(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        cost = self.cost_function(obs)
+        guidance = None if cost is None else Guidance(cost, self.guidance_scale, self.guidance_t_min)
+        fresh = self._previous is None
+        if fresh:
+            plans = self.plan(obs, None, num_samples=1, guidance=guidance)
+        else:
+            remainder = shift_plan(self._previous[None], executed=self.action_steps)
+            plans = self.plan(obs, None, init_plan=remainder, t_start=self.t_start, steps=self.refine_steps,
+                              guidance=guidance)
+        self._previous = plans[0]
+        final = float("nan")
+        if self.track_cost:
+            with torch.no_grad():
+                final = 0.0 if cost is None else float(cost(plans, 1.0)[0])
+        self.diagnostics.append(CapeStep(fresh, cost is not None, final))
+        return plans[0].numpy()
+
+    # ------------------------------------------------------------------ cost
+    def cost_function(self, obs: Mapping[str, np.ndarray]):
+        """``cost(plans (K, H, D) physical, t) -> (K,)`` for this observation, or ``None`` without an obstacle."""
+        if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) < 0.5:
+            return None
+        observation = dict(obs)
+        sdf, robot = self._obstacle_sdf(observation), self.robot.aligned_to(observation)
+        fingers = torch.as_tensor(np.asarray(obs["gripper_qpos"], np.float64))
+
+        def cost(plans: torch.Tensor, t: float) -> torch.Tensor:
+            return self.collision_cost(plans, robot, sdf, fingers)
+
+        return cost
+
+    def _obstacle_sdf(self, obs: dict[str, np.ndarray]) -> ObstacleSDF:
+        """The shared SDF, re-posed without re-baking while the obstacle keeps its shape (to 1 mm; pushes
+        move it, float32 poses jitter its local points by ~1e-6 m, which can change the grid cache key)."""
+        pose = np.asarray(obs["obstacle_pose"], np.float64)
+        rotation = quat_xyzw_to_matrix(pose[3:7])
+        local = (np.asarray(obs["obstacle_points"], np.float64) - pose[:3]) @ rotation
+        if self._shape is not None and self._shape[0].shape == local.shape \
+                and np.abs(self._shape[0] - local).max() < 1e-3:
+            sdf = self._shape[1]
+            return ObstacleSDF(sdf.grid, rotation, pose[:3], sdf.mesh)
+        sdf = obstacle_sdf(obs)
+        self._shape = (local, sdf)
+        return sdf
+
+    def collision_cost(self, plans: torch.Tensor, robot: RobotGeometry, sdf: ObstacleSDF,
+                       fingers: torch.Tensor | None = None) -> torch.Tensor:
+        """(K,) sphere hinge cost of physical plans (K, H, D) on the states, the actions or both (``guide``)."""
+        joints = plans[..., self.layout.key_slice("robot_joint_pos")]
+        fk = robot.kinematics(joints, None if fingers is None else fingers.to(joints.dtype))
+        centres = robot.spheres.world(fk)  # (K, H, S, 3)
+        radii = robot.spheres.radii_tensor(centres)
+        total = torch.zeros(plans.shape[:-2], dtype=plans.dtype)
+        if self.guide in ("both", "states"):
+            total = total + sphere_cost(centres, radii, sdf, self.margin)
+        if self.guide in ("both", "actions"):
+            moves = self.action_gain * POSITION_SCALE * plans[..., self.layout.action_slice][..., :-1, :3]
+            start = fk.eef_position[..., :1, :].detach()  # the current grip site (inpainted state)
+            path = torch.cat([start, start + torch.cumsum(moves, dim=-2)], dim=-2)  # (K, H, 3)
+            hand = (centres - fk.eef_position[..., None, :]).detach()  # sphere layout from the FK orientation
+            total = total + sphere_cost(hand + path[..., None, :], radii, sdf, self.margin)
+        return total
+
+
+def _check_options(t_start, refine_steps, scale, t_min, radius, margin, guide, gain) -> None:
+    checks = (
+        (0.0 < t_start < 1.0, f"t_start must lie in (0, 1), got {t_start}"),
+        (refine_steps is None or refine_steps >= 1, f"refine_steps must be >= 1, got {refine_steps}"),
+        (scale >= 0.0, f"guidance_scale must be >= 0, got {scale}"),
+        (0.0 <= t_min <= 1.0, f"guidance_t_min must lie in [0, 1], got {t_min}"),
+        (radius > 0.0, f"sphere_radius must be > 0, got {radius}"),
+        (margin >= 0.0, f"margin must be >= 0, got {margin}"),
+        (guide in GUIDE_TARGETS, f"unknown guide {guide!r}; valid: {', '.join(GUIDE_TARGETS)}"),
+        (0.0 < gain <= 1.0, f"action_gain must lie in (0, 1], got {gain}"),
+    )
+    for ok, message in checks:
+        if not ok:
+            raise ValueError(message)

@@ -1,0 +1,183 @@
+"""AEGIS: the CBF-QP filter on synthetic poses (pass-through, no new violation, minimal change) and the policy
+wrapper on a tiny synthetic-data checkpoint."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from detaug_gym.geometry.sdf import quat_xyzw_to_matrix
+from detaug_gym.models.checkpoint import CheckpointError
+from detaug_gym.models.dataset import read_demos
+from detaug_gym.models.synthetic import write_synthetic_demos
+from detaug_gym.policies import available_policies, make_policy
+from detaug_gym.policies.aegis import AegisPolicy, CBFFilter, EndEffectorEllipsoid, axis_angle_matrix, barrier
+from detaug_gym.train import TrainConfig, train
+
+TINY = dict(horizon=10, steps_per_token=2, d_model=32, layers=1, heads=2, obs_tokens=1, batch_size=32,
+            warmup_steps=5, lr=2e-3, threads=1, progress=False, log_every=50, checkpoint_every=1000)
+OBSTACLE_POS = np.array([0.0, 0.0, 1.0])
+DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # xyzw: tool axis pointing down, like the env's default hand
+FILTER = CBFFilter()
+
+
+def box_observation(centre=OBSTACLE_POS, half=(0.04, 0.05, 0.10), quat=(0.0, 0.0, 0.0, 1.0), eef=(0.0, -0.3, 1.05),
+                    eef_quat=DOWN) -> dict[str, np.ndarray]:
+    """An observation with a posed box obstacle (256 surface points) and a free-floating hand."""
+    points, _ = trimesh.sample.sample_surface(trimesh.creation.box(extents=2 * np.asarray(half)), 248, seed=0)
+    corners = np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T * half
+    local = np.concatenate([corners, points])
+    world = local @ quat_xyzw_to_matrix(np.asarray(quat)).T + centre
+    return {"obstacle_points": world.astype(np.float32), "obstacle_pose": np.r_[centre, quat].astype(np.float32),
+            "obstacle_size": np.asarray(half, np.float32), "obstacle_mask": np.ones(1, np.float32),
+            "eef_pos": np.asarray(eef, np.float64), "eef_quat": np.asarray(eef_quat, np.float64)}
+
+
+def commanded_barrier(action: np.ndarray, obs: dict, flt: CBFFilter = FILTER) -> float:
+    """Exact barrier at the pose the action commands (OSC_POSE goal), not its linearisation."""
+    rotation = axis_angle_matrix(0.5 * np.asarray(action[3:6], np.float64)) @ quat_xyzw_to_matrix(obs["eef_quat"])
+    goal = obs["eef_pos"] + 0.05 * np.asarray(action[:3], np.float64)
+    return barrier(*flt.end_effector.placed(goal, rotation), *flt.obstacle_ellipsoid(obs))[0]
+
+
+unit = st.floats(-1.0, 1.0, allow_nan=False)
+actions = st.tuples(*[unit] * 6, st.sampled_from([-1.0, 1.0])).map(lambda a: np.array(a, np.float32))
+offsets = st.tuples(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), st.floats(-0.1, 0.3)).map(np.array)
+quats = st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(lambda q: np.linalg.norm(q) > 0.1).map(np.array)
+
+
+@settings(max_examples=150, deadline=None)
+@given(action=actions, offset=offsets, quat=quats)
+def test_filter_never_makes_the_commanded_pose_less_safe(action, offset, quat):
+    obs = box_observation(eef=OBSTACLE_POS + offset, eef_quat=quat)
+    filtered, step = FILTER(action, obs)
+    h_nominal, h_filtered = commanded_barrier(action, obs), commanded_barrier(filtered, obs)
+    assert np.all(np.isfinite(filtered)) and np.all(np.abs(filtered[:3]) <= 1.0 + 1e-6)
+    assert filtered[3:] .tobytes() == action[3:].tobytes()  # only the position part is ever changed
+    if not step.active:
+        assert filtered is action
+        return
+    assert step.correction > 0.0
+    if step.feasible:  # h is convex in the centre, so the linear constraint bounds the true barrier
+        assert h_filtered >= (1.0 - FILTER.alpha * FILTER.dt) * step.h - 1e-6
+        assert h_filtered >= h_nominal - 1e-6  # never a larger violation than the proposal's
+        if step.h >= 0.0:
+            assert h_filtered >= -1e-6  # a safe pose stays safe
+
+
+@settings(max_examples=60, deadline=None)
+@given(action=actions, quat=quats)
+def test_safe_actions_pass_bit_identical(action, quat):
+    far = box_observation(eef=OBSTACLE_POS + np.array([0.0, -0.8, 0.3]), eef_quat=quat)
+    filtered, step = FILTER(action, far)
+    assert filtered is action and not step.active and step.h > 0.5
+    free = dict(far, obstacle_mask=np.zeros(1, np.float32))
+    filtered, step = FILTER(action, free)
+    assert filtered is action and step.h == float("inf")
+
+
+def test_correction_is_the_projection_when_the_box_is_slack():
+    obs = box_observation(eef=OBSTACLE_POS + np.array([0.0, -0.17, 0.05]))
+    action = np.array([0.0, 0.6, 0.0, 0.0, 0.0, 0.0, -1.0], np.float32)  # straight at the obstacle
+    filtered, step = FILTER(action, obs)
+    assert step.active and step.feasible
+    h, g, b = FILTER.constraint(action, obs, FILTER.obstacle_ellipsoid(obs))
+    a = action[:3].astype(np.float64)
+    projection = a + (b - g @ a) / (g @ g) * g  # closed form of the one-constraint QP
+    assert np.abs(projection).max() < 1.0
+    np.testing.assert_allclose(filtered[:3], projection, atol=1e-5)
+    assert g @ filtered[:3] >= b - 1e-6
+
+
+def test_infeasible_step_takes_the_fastest_way_out_and_says_so():
+    obs = box_observation(eef=OBSTACLE_POS + np.array([0.0, -0.02, -0.056]))  # hand centre near the obstacle centre
+    action = np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0], np.float32)
+    filtered, step = FILTER(action, obs)
+    assert step.active and step.h < 0 and not step.feasible
+    assert filtered[1] == -1.0 and commanded_barrier(filtered, obs) > step.h
+
+
+@settings(max_examples=60, deadline=None)
+@given(offset=offsets, quat=quats)
+def test_nonnegative_barrier_means_the_ellipsoids_are_apart(offset, quat):
+    obs = box_observation(eef=OBSTACLE_POS + offset, eef_quat=quat)
+    rotation = quat_xyzw_to_matrix(quat)
+    centre, q_ee = FILTER.end_effector.placed(obs["eef_pos"], rotation)
+    obs_centre, q_obs = FILTER.obstacle_ellipsoid(obs)
+    h, _ = barrier(centre, q_ee, obs_centre, q_obs)
+    if h < 0:
+        return
+    sphere = np.random.default_rng(0).normal(size=(2000, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    surface = centre + sphere @ np.linalg.cholesky(q_ee).T  # points on the end-effector ellipsoid
+    diff = surface - obs_centre
+    assert np.all(np.einsum("ni,ij,nj->n", diff, np.linalg.inv(q_obs), diff) > 1.0)
+
+
+@pytest.mark.parametrize("distance", [0.05, 0.1, 0.2, 0.4])
+def test_barrier_is_exact_for_equal_spheres(distance):
+    q = 0.05**2 * np.eye(3)
+    h, grad = barrier(np.array([distance, 0.0, 0.0]), q, np.zeros(3), q)
+    assert h == pytest.approx(distance / 0.1 - 1.0)
+    np.testing.assert_allclose(grad, [1.0 / 0.1, 0.0, 0.0])
+
+
+def test_obstacle_ellipsoid_encloses_the_points_when_posed_and_moved():
+    flt = CBFFilter()
+    yaw = np.array([0.0, 0.0, np.sin(0.4), np.cos(0.4)])
+    for centre, quat in ((OBSTACLE_POS, (0, 0, 0, 1)), (OBSTACLE_POS + [0.1, -0.05, 0.0], yaw)):
+        obs = box_observation(centre=centre, quat=quat)
+        c, q = flt.obstacle_ellipsoid(obs)
+        diff = obs["obstacle_points"].astype(np.float64) - c
+        assert np.all(np.einsum("ni,ij,nj->n", diff, np.linalg.inv(q), diff) <= 1.0 + 1e-6)
+    assert len(flt._fits) == 1  # one shape, fitted once in its own frame
+
+
+def test_end_effector_ellipsoid_sits_above_the_grip_site():
+    centre, q = EndEffectorEllipsoid().placed(np.zeros(3), quat_xyzw_to_matrix(DOWN))
+    np.testing.assert_allclose(centre, [0.0, 0.0, 0.056])  # tool axis points down: the wrist is above
+    np.testing.assert_allclose(np.sort(np.sqrt(np.linalg.eigvalsh(q))), [0.06, 0.11, 0.12])
+
+
+@pytest.mark.parametrize("options", [dict(alpha=0.0), dict(alpha=30.0), dict(ee_semi_axes=(0.1, 0.0, 0.1)),
+                                     dict(base="aegis")])
+def test_bad_options_fail_at_construction(options):
+    with pytest.raises(ValueError):
+        AegisPolicy(base="random", **options) if "base" not in options else AegisPolicy(**options)
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    root = tmp_path_factory.mktemp("aegis_policy")
+    data = write_synthetic_demos(root / "demos.hdf5", n_demos=8, length=24)
+    cfg = TrainConfig(method="base", data=str(data), out=str(root / "policy"), steps=40, **TINY)
+    train(cfg)
+    demo = read_demos(str(data))[0]
+    return cfg.out, {key: np.asarray(value[0], np.float32) for key, value in demo.obs.items()}
+
+
+def test_policy_from_the_registry_filters_the_base_policy(checkpoint):
+    path, obs = checkpoint
+    assert "aegis" in available_policies()
+    policy = make_policy("aegis", suite="spatial", checkpoint=path, action_steps=2, seed=0)
+    assert isinstance(policy, AegisPolicy)
+    near = dict(obs, **{k: v for k, v in box_observation(eef=obs["eef_pos"]).items() if k.startswith("obstacle")})
+    near["obstacle_pose"][:3] = obs["eef_pos"] + [0.0, 0.2, 0.0]
+    near["obstacle_points"] += near["obstacle_pose"][:3] - OBSTACLE_POS
+    policy.reset(seed=0)
+    for observation in (obs | {"obstacle_mask": np.zeros(1, np.float32)}, near, near):
+        action = policy.act(observation)
+        assert action.shape == (7,) and action.dtype == np.float32 and np.all(np.isfinite(action))
+    assert len(policy.diagnostics) == 3 and policy.diagnostics[0].h == float("inf")
+    policy.reset(seed=1)
+    assert policy.diagnostics == []
+
+
+def test_missing_checkpoint_or_base_fails_at_construction(tmp_path):
+    with pytest.raises(CheckpointError):
+        make_policy("aegis", suite="spatial", checkpoint=str(tmp_path / "nothing"))
+    with pytest.raises(KeyError, match="unknown policy"):
+        make_policy("aegis", base="no_such_policy")
