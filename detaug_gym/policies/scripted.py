@@ -29,6 +29,15 @@ from functools import partial
 
 import numpy as np
 
+from detaug_gym.policies.scripted_math import (
+    bezier,
+    mat_to_rotvec,
+    min_jerk,
+    quat_to_mat,
+    rot_x,
+    rot_z,
+    wrap_yaw,
+)
 from detaug_gym.policies.scripted_tasks import (
     DRAWER_HANDLE,
     DRAWER_OPEN_DIR,
@@ -284,17 +293,17 @@ class ScriptedExpert:
                 local = np.array([np.cos(a + jitter), np.sin(a + jitter), 0.0])
                 radial = rot @ local
                 flat = np.array([radial[0], radial[1], 0.0]) / max(np.linalg.norm(radial[:2]), 1e-9)
-                yaw = _wrap_yaw(np.arctan2(flat[1], flat[0]) - np.pi / 2, self._yaw)
+                yaw = wrap_yaw(np.arctan2(flat[1], flat[0]) - np.pi / 2, self._yaw)
                 score = float((home + away + prefer) @ flat[:2]) - abs(yaw - self._yaw)  # big turns strain the arm
                 if score > best_score:
                     best_score, direction = score, flat
                     point = centre + rot @ (spec.rim_radius * local + np.array([0.0, 0.0, spec.height + dz]))
             # the fingers close along the radial direction, i.e. across the wall
-            return point, _wrap_yaw(np.arctan2(direction[1], direction[0]) - np.pi / 2, self._yaw)
+            return point, wrap_yaw(np.arctan2(direction[1], direction[0]) - np.pi / 2, self._yaw)
         best = None
         for axis in spec.axes:
             world = rot @ np.array(axis)
-            yaw = _wrap_yaw(np.arctan2(world[1], world[0]) - np.pi / 2, self._yaw)
+            yaw = wrap_yaw(np.arctan2(world[1], world[0]) - np.pi / 2, self._yaw)
             if best is None or abs(yaw - self._yaw) < abs(best - self._yaw):
                 best = yaw
         free_axis = np.array([np.cos(best), np.sin(best), 0.0])  # fingers close along y rotated by yaw
@@ -346,8 +355,8 @@ class ScriptedExpert:
         recent: list[np.ndarray] = []
         lead = self.recipe.lead if self.recipe is not None else 0
         for t in range(1, steps + timeout + 1):
-            s = _min_jerk(min((t + lead) / steps, 1.0))  # a lead of a few steps offsets the servo's lag
-            carrot = _bezier(start, mid, goal, s)
+            s = min_jerk(min((t + lead) / steps, 1.0))  # a lead of a few steps offsets the servo's lag
+            carrot = bezier(start, mid, goal, s)
             turn_s = min(1.0, 1.4 * s)  # finish turning the hand before arriving
             self._yaw = yaw0 + (yaw - yaw0) * turn_s
             self._pitch = pitch0 + (pitch - pitch0) * turn_s
@@ -412,57 +421,8 @@ class ScriptedExpert:
     def _hand_rotation(self) -> np.ndarray:
         # Pitch turns the approach axis from straight down towards world +y's opposite (into a drawer
         # front facing +y); yaw turns the fingers about world z.
-        return _rot_z(self._yaw) @ _rot_x(-self._pitch) @ R_DOWN
+        return rot_z(self._yaw) @ rot_x(-self._pitch) @ R_DOWN
 
     def _current_yaw(self) -> float:
         rot = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64)) @ R_DOWN.T
         return float(np.arctan2(rot[1, 0], rot[0, 0]))
-
-
-# ---------------------------------------------------------------------- small math
-def quat_to_mat(quat_xyzw: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a unit quaternion in xyzw order."""
-    x, y, z, w = np.asarray(quat_xyzw, dtype=np.float64) / max(np.linalg.norm(quat_xyzw), 1e-12)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def mat_to_rotvec(rot: np.ndarray) -> np.ndarray:
-    """Axis-angle vector (axis * angle) of a rotation matrix."""
-    cos = np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0)
-    angle = np.arccos(cos)
-    vee = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1]])
-    if angle < 1e-6:
-        return 0.5 * vee
-    if np.pi - angle < 1e-4:  # near pi: axis from the symmetric part
-        axis = np.sqrt(np.maximum((np.diag(rot) + 1.0) / 2.0, 0.0))
-        axis *= np.where(vee >= 0, 1.0, -1.0)
-        return angle * axis / max(np.linalg.norm(axis), 1e-12)
-    return angle * vee / (2.0 * np.sin(angle))
-
-
-def _rot_z(angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _rot_x(angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _wrap_yaw(yaw: float, reference: float) -> float:
-    """``yaw`` moved by multiples of pi (a parallel gripper is symmetric) to lie nearest ``reference``."""
-    return float(reference + (yaw - reference + np.pi / 2) % np.pi - np.pi / 2)
-
-
-def _min_jerk(s: float) -> float:
-    return s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
-
-
-def _bezier(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, s: float) -> np.ndarray:
-    """Quadratic Bezier through ``p0`` and ``p2`` pulled towards ``p1`` (a straight line when p1 is the midpoint)."""
-    return (1 - s) ** 2 * p0 + 2 * (1 - s) * s * p1 + s * s * p2
