@@ -64,6 +64,7 @@ def test_level2_intersects_the_motion_path():
         p = place_obstacle(problem, HALF, "L2", np.random.default_rng(seed))
         a, b = segments[p.segment]
         # The centre lies within the lateral jitter of the segment, and the footprint covers the segment.
+        assert p.relaxed < 5  # this scene has room on the path itself
         lateral = L2_LATERAL if p.relaxed < 2 else HALF[:2].min()
         assert distance_to_segment(p.xy, a, b) <= lateral + 1e-9
         t = np.linspace(0, 1, 200)[:, None]

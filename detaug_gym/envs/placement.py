@@ -133,9 +133,11 @@ def place_obstacle(
         attempts: samples per relaxation round.
 
     Returns:
-        The placement. If no sample satisfies the constraints, they are relaxed in up to four rounds
-        (recorded in ``Placement.relaxed``): wider stretch of the path, larger lateral offset (still
-        covering the path), smaller clearance gaps. The Level 1 distance band is never relaxed.
+        The placement. If no sample satisfies the constraints, they are relaxed in up to six rounds
+        (recorded in ``Placement.relaxed``): wider stretch of the path, larger lateral offset (covering
+        the path up to round 4, beside it by at most 10 cm in rounds 5-6), smaller clearance gaps. The
+        Level 1 distance band is never relaxed. Failing all rounds, the least-overlapping sample is used
+        (``relaxed == 7``).
     """
     if level not in ("L1", "L2"):
         raise ValueError(f"obstacle placement needs level 'L1' or 'L2', got {level!r}")
@@ -150,7 +152,9 @@ def place_obstacle(
     # lateral bound never exceeds the obstacle's half-width, so a Level 2 footprint always covers the path.
     half_width = float(np.min(half_extents[:2]))
     rounds = [(L2_PATH_FRACTION, L2_LATERAL, 1.0), ((0.15, 0.85), L2_LATERAL, 1.0),
-              ((0.15, 0.85), half_width, 0.6), ((0.1, 0.9), half_width, 0.3), ((0.1, 0.9), half_width, 0.0)]
+              ((0.15, 0.85), half_width, 0.6), ((0.1, 0.9), half_width, 0.3), ((0.1, 0.9), half_width, 0.0),
+              # Cluttered scenes (LIBERO-Goal): beside the path rather than inside another object.
+              ((0.1, 0.9), half_width + 0.05, 0.3), ((0.1, 0.9), half_width + 0.1, 0.0)]
     best, best_score = None, -np.inf
     for relaxed, (fraction, lateral, scale) in enumerate(rounds):
         for name, a, b in segments:
