@@ -162,8 +162,10 @@ class ScriptedExpert:
             yield from self._open_drawer(recipe.steps[0].target_slot)
         transit_z = TRANSIT_Z if recipe.open_drawer else None
         for step in recipe.steps:
-            offset = yield from self._pick(step, transit_z=transit_z)
-            yield from self._place(step, offset)
+            for _ in range(3):  # the object can slip out in the carry: pick it up again
+                offset = yield from self._pick(step, transit_z=transit_z)
+                if (yield from self._place(step, offset)):
+                    break
             # leaving a container: arc over its rim (the servo lags the curve, hence the margin)
             transit_z = self._eef()[2] + 0.06 if TARGETS[step.target].rim is not None else None
         while True:  # hold still, gripper open, until the env ends the episode
@@ -205,11 +207,14 @@ class ScriptedExpert:
         """The held object lags more than 3 cm below where the grasp offset says it should be."""
         return self._eef()[2] - self._pose(slot)[2] - offset_z > 0.03
 
-    def _place(self, step: Step, offset: np.ndarray) -> Actions:
+    def _place(self, step: Step, offset: np.ndarray) -> Generator[np.ndarray, None, bool]:
+        """Carry the held object over its place point, lower, release, retreat; False if it was dropped."""
         style = self.style
-        release = self._place_eef(step, offset)
         above = self._above_place(step, offset)
-        yield from self._move(above, self._yaw, CLOSE, style.speed, tol=0.012, via=True)
+        slipped = partial(self._slipped, step.obj_slot, offset[2])
+        yield from self._move(above, self._yaw, CLOSE, style.speed, tol=0.012, via=True, check=slipped)
+        if slipped():
+            return False
         release = self._place_eef(step, offset)
         yield from self._move(release, self._yaw, CLOSE, 0.5 * style.speed, tol=0.005)
         yield from self._gripper(OPEN)
@@ -218,6 +223,7 @@ class ScriptedExpert:
         if place.rim is not None:  # fingertips well above the rim before moving sideways
             retreat[2] = max(retreat[2], self._pose(step.target_slot)[2] + place.rim + 0.05)
         yield from self._move(retreat, self._yaw, OPEN, 0.8 * style.speed, tol=0.02)
+        return True
 
     def _stage_for_drawer(self, step: Step) -> Actions:
         """Move the object (the bowl) from under where the drawer will open to :data:`DRAWER_STAGE`.
