@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-MODES = {"detaug": "detaug_gym.augment.detaug"}
+MODES = {"detaug": "detaug_gym.augment.detaug", "demogen": "detaug_gym.augment.demogen"}
 
 
 def load_mode(name: str):
