@@ -19,6 +19,7 @@ register_policy("base", "detaug_gym.policies.flow_base:BaseFlowPolicy", "flow po
 register_policy("detaug", "detaug_gym.policies.detaug:DetAugPolicy", "DetAug: K-label selection by collision cost")
 register_policy("aegis", "detaug_gym.policies.aegis:AegisPolicy", "AEGIS: CBF-QP safety filter around another policy")
 register_policy("cape", "detaug_gym.policies.cape:CapePolicy", "CAPE: re-noise the plan remainder, collision guidance")
+register_policy("demogen", "detaug_gym.policies.demogen:DemoGenPolicy", "DemoGen: obstacle-cloud flow policy")
 
 
 def load(path, **options):
