@@ -530,7 +530,7 @@ def augmented_demo(source, place: Placement, detours: list[Detour], plan: Plan, 
     attrs.update({
         "source_demo": source.name, "augmented": True, "augment_mode": "demogen",
         "obstacle_kind": place.shape.kind,
-        "obstacle_pose": place.pose[:3, 3].tolist() + [float(np.arctan2(place.pose[1, 0], place.pose[0, 0]))],  # x y z yaw
+        "obstacle_pose": place.pose[:3, 3].tolist() + [float(np.arctan2(place.pose[1, 0], place.pose[0, 0]))],
         "obstacle_size": (0.5 * (place.mesh.bounds[1] - place.mesh.bounds[0])).tolist(),
         "transits": transits, "max_deviation": rec.max_deviation, "max_offset_drift": rec.max_offset_drift,
         "augment_params": _jsonable(config.as_dict()),
