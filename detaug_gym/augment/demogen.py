@@ -38,7 +38,7 @@ from detaug_gym.augment.context import SourceContext, reset_to_demo
 from detaug_gym.augment.detaug import SourceResult, suite_of
 from detaug_gym.augment.feasibility import FeasibilityConfig
 from detaug_gym.augment.ik import IKConfig, quat_xyzw_to_mat
-from detaug_gym.augment.plan import ArcSample, BentSpan, Plan, Timing
+from detaug_gym.augment.plan import ArcSample, Plan, Replacement, Timing, splice_transits
 from detaug_gym.augment.planner import (
     PlannerConfig,
     ProxyWorld,
@@ -375,36 +375,9 @@ def plan_detour(src: DemoGenSource, place: Placement, i: int, rng: np.random.Gen
 
 def build_detour_plan(ctx: SourceContext, detours: list[Detour]) -> Plan:
     """The new timeline: the source's frames, with each detoured transit replaced by its targets."""
-    command, pos, quat = ctx.demo.gripper_command, ctx.pos, ctx.quat
-    steps, frames, tpos, tquat, grip, spans = [], [], [], [], [], []
-    cursor, length = 0, 0
-    for d in sorted(detours, key=lambda d: d.transit.start):
-        tr = d.transit
-        copied = np.arange(cursor, tr.start)
-        steps.append(copied)
-        frames.append(copied)
-        tpos.append(pos[copied])
-        tquat.append(quat[copied])
-        grip.append(command[copied])
-        length += copied.size
-        n = len(d.pos) - 1
-        steps.append(np.full(n, -1))
-        frames.append(np.concatenate([[tr.start], np.full(n - 1, -1)]))
-        tpos.append(d.pos[:-1])
-        tquat.append(d.quat[:-1])
-        grip.append(np.full(n, command[tr.start]))
-        spans.append(BentSpan(ArcSample(tr, 0.0, 0.0), length, length + n, d.length,
-                              float(np.linalg.norm(d.pos[-1] - d.pos[0]))))
-        length += n
-        cursor = tr.end
-    rest = np.arange(cursor, len(command))
-    steps += [rest]
-    frames += [rest]
-    tpos += [pos[rest], pos[-1:]]
-    tquat += [quat[rest], quat[-1:]]
-    grip += [command[rest]]
-    return Plan(np.concatenate(steps).astype(np.int64), np.concatenate(frames).astype(np.int64),
-                np.concatenate(tpos), np.concatenate(tquat), np.concatenate(grip).astype(np.float64), spans)
+    replacements = [Replacement(ArcSample(d.transit, 0.0, 0.0), d.pos, d.quat, d.length,
+                                float(np.linalg.norm(d.pos[-1] - d.pos[0]))) for d in detours]
+    return splice_transits(ctx.pos, ctx.quat, ctx.demo.gripper_command, replacements)
 
 
 # ---------------------------------------------------------------------------------------------- checks

@@ -120,13 +120,37 @@ def transit_targets(pos: np.ndarray, quat: np.ndarray, transit: Transit, phi: fl
     return points, quats, new_len, chord
 
 
+@dataclass
+class Replacement:
+    """New eef targets for one transit: ``points`` (n+1, 3) and ``quats`` (n+1, 4) from start to end pose."""
+
+    sample: ArcSample
+    points: np.ndarray
+    quats: np.ndarray
+    length: float
+    chord: float
+
+
 def build_plan(pos: np.ndarray, quat: np.ndarray, command: np.ndarray, samples: list[ArcSample],
                timing: Timing = Timing()) -> Plan:
     """Assemble the new timeline from the source eef path, its gripper command (T,) and the arc samples.
 
     Samples with ``phi == 0`` leave their transit as in the source.
     """
-    n_src = len(command)
+    replacements = []
+    for sample in samples:
+        if sample.phi != 0.0:
+            points, quats, arc_len, chord = transit_targets(pos, quat, sample.transit, sample.phi, sample.theta,
+                                                            timing)
+            replacements.append(Replacement(sample, points, quats, arc_len, chord))
+    return splice_transits(pos, quat, command, replacements)
+
+
+def splice_transits(pos: np.ndarray, quat: np.ndarray, command: np.ndarray,
+                    replacements: list[Replacement]) -> Plan:
+    """The source timeline (eef ``pos`` (T, 3), ``quat`` (T, 4), gripper ``command`` (T,)) with each replaced
+    transit's frames swapped for its new targets; every other frame is copied. Shared by DetAug's arcs and
+    DemoGen's planned detours."""
     steps: list[np.ndarray] = []
     frames: list[np.ndarray] = []
     tpos: list[np.ndarray] = []
@@ -134,8 +158,8 @@ def build_plan(pos: np.ndarray, quat: np.ndarray, command: np.ndarray, samples: 
     grip: list[np.ndarray] = []
     spans: list[BentSpan] = []
     cursor, length = 0, 0
-    for sample in sorted((s for s in samples if s.phi != 0.0), key=lambda s: s.transit.start):
-        tr = sample.transit
+    for rep in sorted(replacements, key=lambda r: r.sample.transit.start):
+        tr = rep.sample.transit
         copied = np.arange(cursor, tr.start)
         steps.append(copied)
         frames.append(copied)
@@ -143,17 +167,16 @@ def build_plan(pos: np.ndarray, quat: np.ndarray, command: np.ndarray, samples: 
         tquat.append(quat[copied])
         grip.append(command[copied])
         length += copied.size
-        points, quats, arc_len, chord = transit_targets(pos, quat, tr, sample.phi, sample.theta, timing)
-        n = len(points) - 1
+        n = len(rep.points) - 1
         steps.append(np.full(n, -1))
         frames.append(np.concatenate([[tr.start], np.full(n - 1, -1)]))
-        tpos.append(points[:-1])
-        tquat.append(quats[:-1])
+        tpos.append(rep.points[:-1])
+        tquat.append(rep.quats[:-1])
         grip.append(np.full(n, command[tr.start]))
-        spans.append(BentSpan(sample, length, length + n, arc_len, chord))
+        spans.append(BentSpan(rep.sample, length, length + n, rep.length, rep.chord))
         length += n
         cursor = tr.end
-    rest = np.arange(cursor, n_src)
+    rest = np.arange(cursor, len(command))
     steps.append(rest)
     frames.append(rest)
     tpos.append(pos[rest])
