@@ -68,7 +68,8 @@ def card(suite: str, stats: dict[str, list[dict]], seeds: int) -> str:
               f"{L1_GAP[0]:.2f}-{L1_GAP[1]:.2f} m from the object to pick, any direction, no overlap with "
               "other objects. Level 2: on the straight motion path, carry segment (pick -> place) when it "
               "has room, else the approach segment (hand start -> pick), centre within "
-              f"{L2_LATERAL:.2f} m of it (relaxation widens this, and its last two rounds may put it up to 10 cm beside the path in cluttered scenes), raised on a "
+              f"{L2_LATERAL:.2f} m of it (relaxation widens this, and its last two rounds may put it up to "
+              "10 cm beside the path in cluttered scenes), raised on a "
               f"pedestal when shorter than the carry height ({TRANSIT_HEIGHT:.2f} m above the support minus "
               "the held object).",
               "- `relaxed` counts placements that needed relaxed constraints (see `place_obstacle`); a "
