@@ -37,7 +37,7 @@ from detaug_gym.report import read_records, write_report
 from detaug_gym.rollout import EpisodeKey, run_episode
 
 LEVEL_NAMES = {"1": "L1", "2": "L2", "free": "Free", "l1": "L1", "l2": "L2"}
-DEFAULT_METHODS = ("scripted", "random")
+DEFAULT_METHODS = ("detaug", "base", "scripted")
 
 
 @dataclass(frozen=True)
