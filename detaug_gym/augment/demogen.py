@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
@@ -35,9 +35,8 @@ import trimesh
 
 from detaug_gym.augment.arcs import arc_steps, peak_factor, slerp, smooth_trapezoid
 from detaug_gym.augment.context import SourceContext, reset_to_demo
-from detaug_gym.augment.detaug import SourceResult, suite_of
-from detaug_gym.augment.feasibility import FeasibilityConfig
-from detaug_gym.augment.ik import IKConfig, quat_xyzw_to_mat
+from detaug_gym.augment.detaug import SourceResult, StageConfigs, suite_of
+from detaug_gym.augment.ik import quat_xyzw_to_mat
 from detaug_gym.augment.plan import ArcSample, Plan, Replacement, Timing, splice_transits
 from detaug_gym.augment.planner import (
     PlannerConfig,
@@ -53,7 +52,7 @@ from detaug_gym.augment.planner import (
     sphere_part,
 )
 from detaug_gym.augment.replay import ReplayConfig, run_plan
-from detaug_gym.augment.segment import SegmentConfig, Transit
+from detaug_gym.augment.segment import Transit
 
 __all__ = ["DemoGenConfig", "ObstacleShape", "augment_source", "label_size", "suite_of"]
 
@@ -68,7 +67,7 @@ def label_size(env_id: str) -> int:
 
 
 @dataclass(frozen=True)
-class DemoGenConfig:
+class DemoGenConfig(StageConfigs):
     """Everything that shapes DemoGen samples; stored with every augmented demo.
 
     Attributes:
@@ -78,7 +77,7 @@ class DemoGenConfig:
         path_fraction: where along the transit (fraction of its length) the obstacle stands.
         scene_gap: clearance of the obstacle's footprint to every scene object (m).
         proxy_margin: inflation of the hand / wrist proxy (m): the detour's clearance.
-        tries: samples per requested copy; placement_tries: placements per sample.
+        placement_tries: placements tried per sample (``tries``, samples per copy, is in :class:`StageConfigs`).
         replay_tolerance: depth (m) a recorded robot / object point may reach inside the obstacle's hull.
     """
 
@@ -89,20 +88,9 @@ class DemoGenConfig:
     path_fraction: tuple[float, float] = (0.2, 0.8)
     scene_gap: float = 0.01
     proxy_margin: float = 0.01
-    tries: int = 4
     placement_tries: int = 60
-    max_length: int | None = None
-    validate: bool = True
     replay_tolerance: float = 0.005
     planner: PlannerConfig = field(default_factory=PlannerConfig)
-    segment: SegmentConfig = field(default_factory=SegmentConfig)
-    timing: Timing = field(default_factory=Timing)
-    ik: IKConfig = field(default_factory=IKConfig)
-    feasibility: FeasibilityConfig = field(default_factory=FeasibilityConfig)
-    replay: ReplayConfig = field(default_factory=ReplayConfig)
-
-    def as_dict(self) -> dict:
-        return asdict(self)
 
 
 # ---------------------------------------------------------------------------------------------- obstacles

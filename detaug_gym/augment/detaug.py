@@ -47,20 +47,16 @@ def label_size(env_id: str) -> int:
 
 
 @dataclass(frozen=True)
-class DetAugConfig:
-    """Everything that shapes DetAug samples; stored with every augmented demo.
+class StageConfigs:
+    """The pipeline stages every augmentation mode shares (segmentation, timing, IK, feasibility, replay).
 
     Attributes:
-        phi_range: arc half-angle range (rad); paper: [0.15 pi, 0.85 pi].
-        theta_range: plane rotation range (rad); paper: [0, pi].
         tries: samples drawn per requested copy before giving up on that copy.
         max_length: longest augmented demo (steps); None: the env's episode limit.
-        validate: keep a replayed sample only if it succeeds and tracks the arc (samples are always
+        validate: keep a replayed sample only if it succeeds and tracks its plan (samples are always
             replayed: the replay is what records the demo's states and observations).
     """
 
-    phi_range: tuple[float, float] = (0.15 * np.pi, 0.85 * np.pi)
-    theta_range: tuple[float, float] = (0.0, np.pi)
     tries: int = 4
     max_length: int | None = None
     validate: bool = True
@@ -72,6 +68,19 @@ class DetAugConfig:
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+
+@dataclass(frozen=True)
+class DetAugConfig(StageConfigs):
+    """Everything that shapes DetAug samples; stored with every augmented demo.
+
+    Attributes:
+        phi_range: arc half-angle range (rad); paper: [0.15 pi, 0.85 pi].
+        theta_range: plane rotation range (rad); paper: [0, pi].
+    """
+
+    phi_range: tuple[float, float] = (0.15 * np.pi, 0.85 * np.pi)
+    theta_range: tuple[float, float] = (0.0, np.pi)
 
 
 @dataclass
