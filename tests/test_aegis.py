@@ -11,14 +11,9 @@ from hypothesis import strategies as st
 
 from detaug_gym.geometry.sdf import quat_xyzw_to_matrix
 from detaug_gym.models.checkpoint import CheckpointError
-from detaug_gym.models.dataset import read_demos
-from detaug_gym.models.synthetic import write_synthetic_demos
 from detaug_gym.policies import available_policies, make_policy
 from detaug_gym.policies.aegis import AegisPolicy, CBFFilter, EndEffectorEllipsoid, axis_angle_matrix, barrier
-from detaug_gym.train import TrainConfig, train
 
-TINY = dict(horizon=10, steps_per_token=2, d_model=32, layers=1, heads=2, obs_tokens=1, batch_size=32,
-            warmup_steps=5, lr=2e-3, threads=1, progress=False, log_every=50, checkpoint_every=1000)
 OBSTACLE_POS = np.array([0.0, 0.0, 1.0])
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # xyzw: tool axis pointing down, like the env's default hand
 FILTER = CBFFilter()
@@ -150,13 +145,8 @@ def test_bad_options_fail_at_construction(options):
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    root = tmp_path_factory.mktemp("aegis_policy")
-    data = write_synthetic_demos(root / "demos.hdf5", n_demos=8, length=24)
-    cfg = TrainConfig(method="base", data=str(data), out=str(root / "policy"), steps=40, **TINY)
-    train(cfg)
-    demo = read_demos(str(data))[0]
-    return cfg.out, {key: np.asarray(value[0], np.float32) for key, value in demo.obs.items()}
+def checkpoint(tiny_base_checkpoint):
+    return tiny_base_checkpoint
 
 
 def test_policy_from_the_registry_filters_the_base_policy(checkpoint):

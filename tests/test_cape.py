@@ -8,25 +8,14 @@ import torch
 
 from detaug_gym.geometry import RobotGeometry, obstacle_sdf, plan_collision_cost
 from detaug_gym.models.checkpoint import CheckpointError
-from detaug_gym.models.dataset import read_demos
 from detaug_gym.models.flow import Guidance
-from detaug_gym.models.synthetic import write_synthetic_demos
 from detaug_gym.policies import available_policies, make_policy
 from detaug_gym.policies.cape import CapePolicy
-from detaug_gym.train import TrainConfig, train
-
-TINY = dict(horizon=10, steps_per_token=2, d_model=32, layers=1, heads=2, obs_tokens=1, batch_size=32,
-            warmup_steps=5, lr=2e-3, threads=1, progress=False, log_every=50, checkpoint_every=1000)
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    root = tmp_path_factory.mktemp("cape_policy")
-    data = write_synthetic_demos(root / "demos.hdf5", n_demos=8, length=24)
-    cfg = TrainConfig(method="base", data=str(data), out=str(root / "policy"), steps=40, **TINY)
-    train(cfg)
-    demo = read_demos(str(data))[0]
-    return cfg.out, {key: np.asarray(value[0], np.float32) for key, value in demo.obs.items()}
+def checkpoint(tiny_base_checkpoint):
+    return tiny_base_checkpoint
 
 
 def with_obstacle_near_hand(obs, shift=(0.0, 0.0, -0.03), half=0.05):

@@ -7,25 +7,13 @@ import pytest
 import torch
 
 from detaug_gym.geometry import RobotGeometry
-from detaug_gym.models.dataset import read_demos
-from detaug_gym.models.synthetic import write_synthetic_demos
 from detaug_gym.policies import available_policies, load, make_policy
 from detaug_gym.policies.detaug import DetAugPolicy
-from detaug_gym.train import TrainConfig, train
-
-TINY = dict(horizon=10, steps_per_token=2, d_model=32, layers=1, heads=2, obs_tokens=1, batch_size=32,
-            warmup_steps=5, lr=2e-3, threads=1, progress=False, log_every=50, checkpoint_every=1000)
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    root = tmp_path_factory.mktemp("detaug_policy")
-    data = write_synthetic_demos(root / "demos.hdf5", n_demos=8, length=24, label_dim=4)
-    cfg = TrainConfig(method="detaug", data=str(data), out=str(root / "policy"), steps=60, **TINY)
-    train(cfg)
-    demo = read_demos(str(data))[0]
-    obs = {key: np.asarray(value[0], np.float32) for key, value in demo.obs.items()}
-    return cfg.out, obs
+def checkpoint(tiny_detaug_checkpoint):
+    return tiny_detaug_checkpoint
 
 
 def _with_obstacle_at_hand(obs):
