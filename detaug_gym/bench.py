@@ -12,6 +12,9 @@ Examples (copy-paste)::
     # obstacle-free reference runs
     python -m detaug_gym.bench --methods scripted --levels free --episodes 20 --out results/free
 
+    # method options after a colon (name:key=value,key=value): the paper's K sweep and ablations
+    python -m detaug_gym.bench --methods detaug:k=1 detaug:k=8 detaug detaug:latch=True detaug:labels=zero
+
 Every method sees the same episodes: episode ``i`` of a (suite, level) cell uses task ``i mod #tasks``,
 and the same seed (hence the same LIBERO init state and the same obstacle) for every method. Each
 finished episode is appended to ``<out>/episodes.jsonl`` at once; rerunning the same command skips the
@@ -22,6 +25,7 @@ rewritten from all lines at the end.
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import os
 import zlib
@@ -65,13 +69,37 @@ def parse_suites(values: list[str]) -> list[str]:
     return [v.lower() for v in values]
 
 
-def check_methods(methods: list[str]) -> None:
-    from detaug_gym.policies import available_policies
+def parse_method(spec: str) -> tuple[str, dict]:
+    """``"detaug:k=8,labels=zero"`` -> ``("detaug", {"k": 8, "labels": "zero"})``; values are Python
+    literals where they parse as one (``8``, ``True``, ``0.5``) and strings otherwise."""
+    name, _, options = spec.partition(":")
+    kwargs = {}
+    for item in filter(None, options.split(",")):
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip().isidentifier():
+            raise SystemExit(f"bad method option {item!r} in {spec!r}; write name:key=value[,key=value]")
+        try:
+            kwargs[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            kwargs[key.strip()] = value.strip()
+    return name.lower(), kwargs
 
-    missing = [m for m in methods if m.lower() not in available_policies()]
+
+def check_methods(methods: list[str], suite: str = "spatial") -> None:
+    """Fail before any episode runs on an unknown method or on options its policy rejects."""
+    from detaug_gym.policies import available_policies, make_policy
+
+    missing = [m for m in methods if parse_method(m)[0] not in available_policies()]
     if missing:
         raise SystemExit(f"unknown method(s) {', '.join(missing)}; registered policies: "
-                         f"{', '.join(available_policies())}")
+                         f"{', '.join(available_policies())} (options go after a colon: detaug:k=8)")
+    for spec in methods:
+        name, options = parse_method(spec)
+        if options:
+            try:
+                make_policy(name, suite=suite, **options)
+            except (TypeError, ValueError) as exc:
+                raise SystemExit(f"method {spec!r}: {exc}") from exc
 
 
 def env_id_for(suite: str, level: str) -> str:
@@ -118,7 +146,8 @@ def _run_job(job: Job) -> dict:
         if env_key not in _CACHE:
             _CACHE[env_key] = gym.make(job.key.env_id)
         if pol_key not in _CACHE:
-            _CACHE[pol_key] = make_policy(job.key.method, suite=job.suite)
+            name, options = parse_method(job.key.method)
+            _CACHE[pol_key] = make_policy(name, suite=job.suite, **options)
     except Exception as exc:  # construction errors are recorded like episode errors
         from detaug_gym.rollout import EpisodeRecord
 
@@ -132,9 +161,9 @@ def _run_job(job: Job) -> dict:
 
 
 def run(args: argparse.Namespace) -> str:
-    methods = [m.lower() for m in args.methods]
-    check_methods(methods)
+    methods = [m if ":" in m else m.lower() for m in args.methods]
     suites, levels = parse_suites(args.suites), parse_levels(args.levels)
+    check_methods(methods, suites[0])
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log = out / "episodes.jsonl"
@@ -167,7 +196,8 @@ def run(args: argparse.Namespace) -> str:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m detaug_gym.bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), help="registered policy names")
+    p.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS),
+                   help="registered policy names, each optionally with options: detaug:k=8,latch=True")
     p.add_argument("--suites", nargs="+", default=["spatial"], help="spatial object goal long newton")
     p.add_argument("--levels", nargs="+", default=["1", "2"], help="1 2 free")
     p.add_argument("--episodes", type=int, default=4, help="episodes per (method, suite, level) cell")

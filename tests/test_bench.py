@@ -68,6 +68,17 @@ def test_unknown_method_suite_level_fail_clearly(tmp_path):
         bench.parse_levels(["3"])
 
 
+def test_method_options_parse_and_bad_options_fail_before_running(tmp_path):
+    assert bench.parse_method("detaug:k=8,labels=zero,latch=True") == ("detaug", {"k": 8, "labels": "zero",
+                                                                                "latch": True})
+    assert bench.parse_method("Base") == ("base", {})
+    with pytest.raises(SystemExit, match="name:key=value"):
+        bench.parse_method("detaug:k")
+    with pytest.raises(SystemExit, match="scripted:task=teleport.*unknown task recipe"):
+        bench.run(_args(tmp_path, ["scripted:task=teleport"]))
+    assert not (tmp_path / "episodes.jsonl").exists() or not _lines(tmp_path)
+
+
 def test_episode_seeds_do_not_depend_on_method_or_order():
     jobs = bench.plan_jobs(["a", "b"], ["spatial"], ["L1", "L2"], 4, seed=0)
     seeds = {}

@@ -185,6 +185,15 @@ def test_observation_vector_uses_rotation_columns():
     assert np.allclose(vec[0], [1, 0, 0, 0, -1, 0])
 
 
+def test_object_rel_pos_is_derived_from_stored_keys_and_masked():
+    obs = {"eef_pos": np.array([[0.1, 0.2, 1.0]]), "object_mask": np.array([[1.0, 0.0]]),
+           "object_poses": np.array([[[0.3, 0.1, 0.9, 0, 0, 0, 1], [5.0, 5.0, 5.0, 0, 0, 0, 1]]])}
+    vec = observation_vector(obs, ("object_rel_pos",))
+    assert np.allclose(vec, [[0.2, -0.1, -0.1, 0.0, 0.0, 0.0]])
+    with pytest.raises(KeyError, match="eef_pos"):
+        observation_vector({k: v for k, v in obs.items() if k != "eef_pos"}, ("object_rel_pos",))
+
+
 def test_shift_plan_pads_like_training_windows():
     plan = torch.arange(2 * 5 * 9, dtype=torch.float32).reshape(2, 5, 9)
     shifted = shift_plan(plan, 2)

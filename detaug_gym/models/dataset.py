@@ -10,7 +10,10 @@ Cartesian view of the motion it commands in OSC deltas. The plan at time ``t`` i
 a_t..a_{t+H-1}]``: its first state is the *current* state, which the sampler inpaints.
 
 **Observation conditioning** (vector ``C``): robot joint positions and velocities, gripper qpos, eef pose,
-object poses, object mask and task id. Quaternions (xyzw) become the first two columns of their rotation
+object poses, object mask, task id and the derived ``object_rel_pos`` (S, 3): each tracked object's position
+minus the end effector's (zero where the mask is 0). The network could subtract the two absolute positions
+itself, but grasping a bowl's rim needs ~1 cm precision and the relative vector hands it over directly
+(see ``docs/models.md`` for the measured effect). Quaternions (xyzw) become the first two columns of their rotation
 matrix: continuous and sign-free (a top-down gripper has ``w ~ 0``, where a canonical-sign rule would flip).
 The obstacle keys are never part of it; only the ``demogen`` method reads ``obstacle_points``, through its
 point-cloud encoder.
@@ -38,7 +41,8 @@ from detaug_gym.models.normalize import Normalizer
 
 PLAN_STATE_KEYS = ("robot_joint_pos", "gripper_qpos", "eef_pos")
 OBS_KEYS = ("robot_joint_pos", "robot_joint_vel", "gripper_qpos", "eef_pos", "eef_quat",
-            "object_poses", "object_mask", "task_id")
+            "object_poses", "object_mask", "task_id", "object_rel_pos")
+DERIVED_KEYS = {"object_rel_pos": ("object_poses", "eef_pos", "object_mask")}  # computed, not stored
 ACTION_DIM = 7
 QUAT_KEYS = {"eef_quat": None, "object_poses": slice(3, 7)}  # where a key holds xyzw quaternions
 
@@ -53,12 +57,33 @@ def quat_to_rot6d(quat: np.ndarray) -> np.ndarray:
     return np.concatenate([col0, col1], axis=-1)
 
 
+def source_keys(keys: tuple[str, ...]) -> tuple[str, ...]:
+    """The stored observation keys that ``keys`` (which may name :data:`DERIVED_KEYS`) are computed from."""
+    out: list[str] = []
+    for key in keys:
+        for name in DERIVED_KEYS.get(key, (key,)):
+            if name not in out:
+                out.append(name)
+    return tuple(out)
+
+
+def object_rel_pos(obs: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Tracked objects' positions relative to the end effector, (N, S, 3); masked slots are zero."""
+    poses, eef = np.asarray(obs["object_poses"], np.float64), np.asarray(obs["eef_pos"], np.float64)
+    mask = np.asarray(obs["object_mask"], np.float64)
+    return (poses[..., :3] - eef[..., None, :]) * mask[..., None]
+
+
 def observation_vector(obs: Mapping[str, np.ndarray], keys: tuple[str, ...] = OBS_KEYS) -> np.ndarray:
     """Flatten observation ``keys`` with one leading batch dim, (N, ...) each, into (N, C) float32."""
     parts = []
     for key in keys:
-        if key not in obs:
-            raise KeyError(f"observation has no key {key!r}; the policy was trained on {list(keys)}")
+        missing = [k for k in DERIVED_KEYS.get(key, (key,)) if k not in obs]
+        if missing:
+            raise KeyError(f"observation has no key {missing[0]!r}; the policy was trained on {list(keys)}")
+        if key == "object_rel_pos":
+            parts.append(object_rel_pos(obs).reshape(len(obs["eef_pos"]), -1))
+            continue
         value = np.asarray(obs[key], dtype=np.float64)
         if key == "eef_quat":
             value = quat_to_rot6d(value)
@@ -155,13 +180,14 @@ def read_demos(path: str | Path, obs_keys: tuple[str, ...] = OBS_KEYS) -> list[D
     if not raw:
         raise ValueError(f"{path} holds no demos")
     demos = []
+    stored = source_keys(obs_keys)
     for d in raw:
-        missing = [k for k in obs_keys if k not in d.obs]
+        missing = [k for k in stored if k not in d.obs]
         if missing:
-            raise ValueError(f"{path}:data/{d.name} lacks obs keys {missing} (the policies read {list(obs_keys)})")
+            raise ValueError(f"{path}:data/{d.name} lacks obs keys {missing} (the policies read {list(stored)})")
         label = None if d.label is None else np.asarray(d.label, np.float32).reshape(-1)
         points = None if d.obstacle_points is None else np.asarray(d.obstacle_points, np.float32).reshape(-1, 3)
-        demos.append(Demo(d.name, np.asarray(d.actions, np.float32), {k: np.asarray(d.obs[k]) for k in obs_keys},
+        demos.append(Demo(d.name, np.asarray(d.actions, np.float32), {k: np.asarray(d.obs[k]) for k in stored},
                           label, points, d.attrs))
     return demos
 

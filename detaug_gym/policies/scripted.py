@@ -195,9 +195,13 @@ class ScriptedExpert:
             else:
                 lift_z = grasp[2] + lift
             slipped = partial(self._slipped, step.obj_slot, offset[2])
+            closed_z = self._eef()[2]
             yield from self._move(np.r_[grasp[:2], lift_z], yaw, CLOSE, 0.8 * style.speed,
                                   tol=0.02 if lift is None else 0.006, check=slipped)
-            if self._pose(step.obj_slot)[2] - start_z > 0.6 * min(lift_z - grasp[2], 0.05) and not slipped():
+            # judged against how far the hand actually rose: a short hop ends up to ``tol`` below its goal
+            hand_rise = self._eef()[2] - closed_z
+            if (hand_rise > 0.01 and self._pose(step.obj_slot)[2] - start_z > 0.6 * min(hand_rise, 0.05)
+                    and not slipped()):
                 return offset
             yield from self._gripper(OPEN)
             yield from self._move(self._eef() + [0, 0, 0.06], yaw, OPEN, style.speed, tol=0.02)
@@ -288,13 +292,14 @@ class ScriptedExpert:
             home /= max(np.linalg.norm(home), 1e-9)
             away = centre[:2] - self._pose(step.target_slot)[:2]
             away *= step.rim_away / max(np.linalg.norm(away), 1e-9)
-            jitter = step.rim_jitter * self.style.rim_angle + 0.3 * attempt
+            jitter = step.rim_jitter * self.style.rim_angle
             prefer = np.zeros(2) if step.rim_prefer is None else 4.0 * np.asarray(step.rim_prefer)
             best_score, point, direction = -np.inf, None, None
             dirs = spec.rim_dirs
             if step.rim_prefer is not None and len(dirs) == 8:  # round cup: any wall point, so the preferred one
                 local = rot.T @ np.array([*step.rim_prefer, 0.0])
                 dirs = (float(np.arctan2(local[1], local[0])),)
+            jitter += 0.3 * attempt
             for a in dirs:
                 local = np.array([np.cos(a + jitter), np.sin(a + jitter), 0.0])
                 radial = rot @ local
