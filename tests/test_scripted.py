@@ -91,3 +91,34 @@ def test_expert_succeeds_on_spatial_free(spatial_env, task, init_state):
     obs, _ = spatial_env.reset(seed=seed, options={"task": task, "init_state": init_state})
     expert.reset(seed=seed)
     np.testing.assert_array_equal(expert.act(obs), first)
+
+
+def _benchmark_episode(env, task, index):
+    """Episode ``index`` as ``benchmarks/expert_success.py`` runs it: init state ``index % 50``, seed 1000 + index."""
+    expert = make_policy("scripted")
+    obs, _ = env.reset(seed=1000 + index, options={"task": task, "init_state": index % 50})
+    expert.reset(seed=1000 + index)
+    done, info = False, {}
+    while not done:
+        obs, _, terminated, truncated, info = env.step(expert.act(obs))
+        done = terminated or truncated
+    return info["is_success"], expert.trace
+
+
+def test_expert_backs_off_a_bowl_rim_instead_of_squeezing_it_away(spatial_env):
+    # Spatial task 1: the bowl leans on the ramekin; here a finger lands on its rim. Closing there used to
+    # squeeze the bowl off the table (a time-out); the expert must back off and grasp again.
+    success, trace = _benchmark_episode(spatial_env, task=1, index=24)
+    assert success
+    assert any(name == "regrasp" for name, _, _ in trace)
+
+
+def test_expert_opens_the_drawer_and_stows_the_bowl():
+    # Goal task 3 (drawer_bowl): a short hop ending just under its goal height used to be judged a failed grasp,
+    # and the retry ran the episode out of its 300 steps.
+    env = gym.make("SafeLibero-Goal-Free-v0")
+    try:
+        success, _ = _benchmark_episode(env, task=3, index=29)
+    finally:
+        env.close()
+    assert success

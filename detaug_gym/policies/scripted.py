@@ -7,7 +7,10 @@ task it faces is recognised from the first observation (:func:`~detaug_gym.polic
 identify_task`); the recipes and the object geometry live in :mod:`detaug_gym.policies.scripted_tasks`.
 
 Per pick-and-place: move above the grasp, descend, close, lift (and check the object came along, else
-retry), carry to above the place point keeping the grasp offset, descend, release, retreat. The drawer
+retry), carry to above the place point keeping the grasp offset, descend, release, retreat. A descent
+that stops on the object (the open fingers get pushed together, or the hand ends well above or beside the
+grasp point: a finger on the rim of the bowl propped on the ramekin) backs off and comes again at another
+rim point instead of closing, which would squeeze the object away. The drawer
 task pulls the top drawer open first (grasping its handle with the hand pitched towards the cabinet).
 Motions are straight lines with a minimum-jerk speed profile, tracked by a proportional servo on the
 end-effector pose, so transits look like teleoperation rather than bang-bang control.
@@ -54,6 +57,10 @@ from detaug_gym.policies.scripted_tasks import (
 POS_SCALE = 0.05  # m per unit action (OSC_POSE output_max)
 ROT_SCALE = 0.5  # rad per unit action
 OPEN, CLOSE = -1.0, 1.0
+# End of the descent to a grasp: a hand this far above (or beside) the grasp point did not get there (good grasps
+# close within ~2 cm: the servo stops short of pads resting on the wall).
+BLOCKED_DZ, BLOCKED_DXY = 0.028, 0.035
+SQUEEZED = 0.012  # open fingers pushed this much closer together: one came down on something
 TRANSIT_Z = 1.21  # kitchen scenes: grip-site height that keeps the hand above the drawer and the wine bottle
 # Grip-site orientation with the fingers pointing down and closing along world y (xyzw 0.7071, 0.7071, 0, 0).
 R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -187,7 +194,16 @@ class ScriptedExpert:
             over = None if transit_z is None else np.r_[pre[:2], max(transit_z, self._eef()[2])]
             yield from self._move(pre, yaw, OPEN, style.speed, tol=0.01, via=over is None, pitch=0.0, mid=over)
             grasp, yaw = self._grasp_pose(step, attempt)
-            yield from self._move(grasp, yaw, OPEN, 0.6 * style.speed, tol=0.004)
+            # a finger landing on the object gets pushed in: stop pressing at once (pressing on, the wedged
+            # finger flings a light object away when it comes free)
+            squeezed = partial(lambda width: self._width() < width - SQUEEZED, self._width())
+            yield from self._move(grasp, yaw, OPEN, 0.6 * style.speed, tol=0.004, check=squeezed)
+            if attempt < 3 and self._blocked(step, attempt):
+                # a finger came down on the rim, or the touch knocked the object away: closing would squeeze
+                # it out of reach, so back off and come again (the next attempt turns the rim point)
+                self.trace.append(("regrasp", 0, False))
+                yield from self._move(self._eef() + [0, 0, 0.04], yaw, OPEN, style.speed, tol=0.02)
+                continue
             yield from self._gripper(CLOSE)
             offset = self._eef() - self._pose(step.obj_slot)[:3]
             if lift is None:
@@ -206,6 +222,12 @@ class ScriptedExpert:
             yield from self._gripper(OPEN)
             yield from self._move(self._eef() + [0, 0, 0.06], yaw, OPEN, style.speed, tol=0.02)
         return self._eef() - self._pose(step.obj_slot)[:3]
+
+    def _blocked(self, step: Step, attempt: int) -> bool:
+        """After the descent: the hand stopped well above the grasp point, or the object is no longer there."""
+        grasp, _ = self._grasp_pose(step, attempt)
+        error = self._eef() - grasp
+        return bool(error[2] > BLOCKED_DZ or np.linalg.norm(error[:2]) > BLOCKED_DXY)
 
     def _slipped(self, slot: int, offset_z: float) -> bool:
         """The held object lags more than 3 cm below where the grasp offset says it should be."""
@@ -292,14 +314,13 @@ class ScriptedExpert:
             home /= max(np.linalg.norm(home), 1e-9)
             away = centre[:2] - self._pose(step.target_slot)[:2]
             away *= step.rim_away / max(np.linalg.norm(away), 1e-9)
-            jitter = step.rim_jitter * self.style.rim_angle
+            jitter = step.rim_jitter * self.style.rim_angle + 0.3 * attempt
             prefer = np.zeros(2) if step.rim_prefer is None else 4.0 * np.asarray(step.rim_prefer)
             best_score, point, direction = -np.inf, None, None
             dirs = spec.rim_dirs
             if step.rim_prefer is not None and len(dirs) == 8:  # round cup: any wall point, so the preferred one
                 local = rot.T @ np.array([*step.rim_prefer, 0.0])
                 dirs = (float(np.arctan2(local[1], local[0])),)
-            jitter += 0.3 * attempt
             for a in dirs:
                 local = np.array([np.cos(a + jitter), np.sin(a + jitter), 0.0])
                 radial = rot @ local
