@@ -83,6 +83,28 @@ def level_rows(summary) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
+def task_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
+    """One row per (suite, level, task): ``successes/episodes`` (collisions in brackets) for every method."""
+    counts: dict[tuple, dict[str, list[int]]] = defaultdict(lambda: defaultdict(lambda: [0, 0, 0]))
+    for r in records:
+        if r["termination"] == "error":
+            continue
+        c = counts[(r["suite"], r["level"], r["task"])][r["method"]]
+        c[0] += bool(r["success"])
+        c[1] += bool(r["collision"])
+        c[2] += 1
+    methods = sorted({r["method"] for r in records})
+    header = ["Suite", "Level", "Task", *methods]
+    rows = []
+    for (suite, level, task), by_method in sorted(counts.items()):
+        cells = []
+        for m in methods:
+            s, col, n = by_method.get(m, (0, 0, 0))
+            cells.append("-" if not n else f"{s}/{n}" + (f" ({col} coll.)" if level != "Free" else ""))
+        rows.append([suite, level, str(task), *cells])
+    return header, rows
+
+
 def markdown(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -90,18 +112,22 @@ def markdown(header: list[str], rows: list[list[str]]) -> str:
 
 
 def write_report(records: list[dict], out: Path) -> str:
-    """Write ``table.md``, ``table.csv``, ``levels.csv`` and ``results.png`` into ``out``; return the Markdown."""
+    """Write ``table.md``, ``table.csv``, ``levels.csv``, ``tasks.csv`` and ``results.png`` into ``out``;
+    return the Markdown."""
     summary = summarise(records)
     header, rows = table_rows(summary)
     lheader, lrows = level_rows(summary)
+    theader, trows = task_rows(records)
     text = (
         "## Table I (percent; averaged over levels within a suite)\n\n" + markdown(header, rows)
         + "\n\nClean = success without collision, Total = success irrespective of collision, "
         "Avoid = 1 - collision rate, Timeout = episodes that hit the step limit.\n\n"
-        "## Per level\n\n" + markdown(lheader, lrows) + "\n"
+        "## Per level\n\n" + markdown(lheader, lrows) + "\n\n"
+        "## Per task (successes / episodes)\n\n" + markdown(theader, trows) + "\n"
     )
     (out / "table.md").write_text(text)
-    for name, (h, r) in {"table.csv": (header, rows), "levels.csv": (lheader, lrows)}.items():
+    for name, (h, r) in {"table.csv": (header, rows), "levels.csv": (lheader, lrows),
+                         "tasks.csv": (theader, trows)}.items():
         with open(out / name, "w", newline="") as f:
             csv.writer(f).writerows([h, *r])
     _plot(summary, out / "results.png")

@@ -51,6 +51,8 @@ def test_bench_runs_resumes_and_reports(tmp_path, monkeypatch):
     assert all(r["termination"] == "timeout" and r["steps"] == 12 for r in by_method["random"])
     assert all(r["termination"] == "error" and "boom" in r["error"] for r in by_method["exploding"])
     assert "random" in text and (tmp_path / "table.csv").exists() and (tmp_path / "results.png").exists()
+    tasks = (tmp_path / "tasks.csv").read_text().splitlines()  # per-task counts; errors are not episodes
+    assert tasks[0].startswith("Suite,Level,Task") and any(",0/" in row for row in tasks[1:])
     # rerunning resumes: nothing is repeated or lost
     bench.run(_args(tmp_path, ["random", "exploding"]))
     assert len(_lines(tmp_path)) == 4
