@@ -190,3 +190,15 @@ def test_label_slots_follow_grasp_and_transit_kind():
     approach1 = Transit("approach", 1, 100, 130)
     label = make_label([ArcSample(approach1, 0.5, np.pi / 2), ArcSample(Transit("carry", 0, 40, 80), 0.4, 0.0)], 8)
     np.testing.assert_allclose(label, [0, 0, 0.4, 0, 0, 0.5, 0, 0], atol=1e-12)
+
+
+def test_limit_takes_sources_task_by_task_not_file_order():
+    from types import SimpleNamespace
+
+    from detaug_gym.augment.runner import select_sources
+
+    demos = [SimpleNamespace(name=f"demo_{i}", attrs={"task": i // 3}) for i in range(9)]  # 3 tasks x 3
+    demos.append(SimpleNamespace(name="demo_aug", attrs={"task": 0, "augmented": True}))
+    picked = [d.name for d in select_sources(demos, limit=4)]
+    assert picked == ["demo_0", "demo_1", "demo_3", "demo_6"]  # every task first, then task 0 again
+    assert len(select_sources(demos)) == 9  # augmented demos are never sources

@@ -168,7 +168,7 @@ def run(args: RunArgs, progress: bool = True) -> RunStats:
     env_args = dict(dataset.attrs.get("env_args") or {})
     env_id = env_args.get("env_name") or dataset.demos[0].attrs["env_id"]
     label_len = mode.label_size(env_id)
-    sources = [d for d in dataset.demos if not d.attrs.get("augmented", False)][:args.limit]
+    sources = select_sources(dataset.demos, args.limit)
     stats = read_progress(args.out, mode.suite_of(env_id))
     done = set(stats.done)
     drop_unfinished(args.out, done)
@@ -195,6 +195,16 @@ def run(args: RunArgs, progress: bool = True) -> RunStats:
     finally:
         env.close()
     return stats
+
+
+def select_sources(demos: list, limit: int | None = None) -> list:
+    """The original (not augmented) demos to augment, in file order; with ``limit``, the first ``limit`` in
+    round-robin task order, so a time-boxed run gives every task its share."""
+    sources = [d for d in demos if not d.attrs.get("augmented", False)]
+    if limit is None:
+        return sources
+    order = sorted(range(len(sources)), key=lambda i: round_robin_key(sources, i))[:limit]
+    return [sources[i] for i in sorted(order)]
 
 
 def round_robin_key(sources: list, index: int) -> tuple[int, int]:
