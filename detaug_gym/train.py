@@ -62,7 +62,7 @@ class TrainConfig:
     """Demonstration HDF5 (data/demo_<i>/{actions, obs/...}, plus label or obstacle_points)."""
     out: str = ""
     """Output folder, e.g. policies/<method>/<suite>/."""
-    steps: int = 8_000
+    steps: int = 6_000
     """Optimiser steps in total (a resumed run continues up to this number)."""
     batch_size: int = 128
     """Windows per step."""
