@@ -122,3 +122,36 @@ def test_expert_opens_the_drawer_and_stows_the_bowl():
     finally:
         env.close()
     assert success
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.8, -0.8, 1.5])
+def test_far_rim_grasp_leans_the_fingertips_away_from_the_arm(yaw):
+    expert = make_policy("scripted")
+    expert._home = np.array([-0.21, 0.0, 1.16])  # LIBERO's start pose: the arm's base at x = -0.66
+    assert expert._reach_pitch(np.array([-0.1, 0.05, 1.16]), yaw) == 0.0  # well within reach: no lean
+    grasp = np.array([0.03, -0.23, 1.16])  # 0.73 m from the base, like the bowl on the cabinet (Spatial task 3)
+    expert._pitch, expert._yaw = expert._reach_pitch(grasp, yaw), yaw
+    approach = expert._hand_rotation()[:, 2]  # the fingers' pointing direction
+    out = grasp[:2] - [-0.66, 0.0]
+    lean = np.array([np.sin(yaw), -np.cos(yaw)]) @ out / np.linalg.norm(out)
+    assert approach[2] < -0.9  # still mostly pointing down
+    assert approach[:2] @ out == pytest.approx(np.sin(abs(expert._pitch)) * abs(lean) * np.linalg.norm(out), rel=1e-6)
+    assert approach[:2] @ out >= 0.0
+
+
+def test_expert_reaches_the_bowl_at_the_far_end_of_the_cabinet(spatial_env):
+    # Spatial task 3: the bowl on the cabinet is ~0.75 m from the arm's base. The grasp on its +y side (least wrist
+    # turn, 0.74 m out), with the hand pointing straight down, stalled 2 cm high at the stretched elbow's singular
+    # pose; it slipped on every retry (a time-out). Now: the wall point nearest the base, the hand leaning outwards.
+    success, trace = _benchmark_episode(spatial_env, task=3, index=18)
+    assert success
+    assert trace[1][0] == "move" and trace[1][2]  # the descent to the grasp arrived
+    assert not any(name in ("regrasp", "move-abort") for name, _, _ in trace)
+
+
+def test_expert_lets_go_of_the_bowl_without_dragging_it_off_the_plate(spatial_env):
+    # Spatial task 3, init state 40: a finger pad wedges between two of the flat boxes that make up the bowl's
+    # wall, and opening in place dragged the bowl 4 cm, off the plate (a time-out). The hand now moves towards the
+    # bowl's axis as the fingers open, so the outer pad stays about where it was.
+    success, _ = _benchmark_episode(spatial_env, task=3, index=40)
+    assert success

@@ -10,7 +10,10 @@ Per pick-and-place: move above the grasp, descend, close, lift (and check the ob
 retry), carry to above the place point keeping the grasp offset, descend, release, retreat. A descent
 that stops on the object (the open fingers get pushed together, or the hand ends well above or beside the
 grasp point: a finger on the rim of the bowl propped on the ramekin) backs off and comes again at another
-rim point instead of closing, which would squeeze the object away. The drawer
+rim point instead of closing, which would squeeze the object away. Near the edge of the arm's reach (the
+bowl on the cabinet) the rim point nearest the arm's base is taken and the hand leans outwards, so the elbow
+stays clear of its stretched, singular pose. A rim-held object is let go with the outer finger held in place
+(the hand moves inwards as the fingers open: a pad can wedge in the bowl's faceted wall and drag it along). The drawer
 task pulls the top drawer open first (grasping its handle with the hand pitched towards the cabinet).
 Motions are straight lines with a minimum-jerk speed profile, tracked by a proportional servo on the
 end-effector pose, so transits look like teleoperation rather than bang-bang control.
@@ -62,6 +65,17 @@ OPEN, CLOSE = -1.0, 1.0
 BLOCKED_DZ, BLOCKED_DXY = 0.028, 0.035
 SQUEEZED = 0.012  # open fingers pushed this much closer together: one came down on something
 TRANSIT_Z = 1.21  # kitchen scenes: grip-site height that keeps the hand above the drawer and the wine bottle
+# Reach: LIBERO mounts the Panda with its base 0.45 m behind (-x) the grip site's start pose. With the hand pointing
+# down, a grip site ~0.73 m (horizontally) from the base at table-top grasp height needs the elbow stretched to its
+# singular pose (joint 4 ~ -0.47 rad): the servo stalls there, 2 cm above the grasp (Spatial task 3, the bowl on
+# the cabinet). So rim points beyond REACH_SOFT are penalised, and a far rim grasp leans the approach axis outwards
+# (fingertips towards the cup's axis, up to MAX_PITCH; this also tilts the pads towards the slope of its flared wall):
+# the wrist then stays ~5 cm nearer the base.
+BASE_FROM_HOME = np.array([-0.45, 0.0])
+REACH_SOFT, REACH_WEIGHT = 0.70, 30.0  # m, score per m beyond
+PITCH_FROM, PITCH_FULL, MAX_PITCH = 0.66, 0.71, 0.26  # reach (m) where the lean starts / is full; rad
+LET_GO_SHIFT = 0.03  # letting go of a rim-held object: the hand moves at most this far towards the cup's axis
+LET_GO_GAIN = 1.0  # hand shift per m of finger opening (the outer pad moves half of it; the rest covers the servo lag)
 # Grip-site orientation with the fingers pointing down and closing along world y (xyzw 0.7071, 0.7071, 0, 0).
 R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
@@ -188,11 +202,12 @@ class ScriptedExpert:
         style = self.style
         for attempt in range(4):
             grasp, yaw = self._grasp_pose(step, attempt)
+            pitch = self._reach_pitch(grasp, yaw) if OBJECTS[step.obj].style == "rim" else 0.0
             start_z = self._pose(step.obj_slot)[2]
             pre = grasp + [0, 0, style.approach]
             # with a transit height: arc over, staying high until above the object
             over = None if transit_z is None else np.r_[pre[:2], max(transit_z, self._eef()[2])]
-            yield from self._move(pre, yaw, OPEN, style.speed, tol=0.01, via=over is None, pitch=0.0, mid=over)
+            yield from self._move(pre, yaw, OPEN, style.speed, tol=0.01, via=over is None, pitch=pitch, mid=over)
             grasp, yaw = self._grasp_pose(step, attempt)
             # a finger landing on the object gets pushed in: stop pressing at once (pressing on, the wedged
             # finger flings a light object away when it comes free)
@@ -223,6 +238,14 @@ class ScriptedExpert:
             yield from self._move(self._eef() + [0, 0, 0.06], yaw, OPEN, style.speed, tol=0.02)
         return self._eef() - self._pose(step.obj_slot)[:3]
 
+    def _reach_pitch(self, grasp: np.ndarray, yaw: float) -> float:
+        """Hand pitch that leans the approach axis away from the arm's base for a grasp near the edge of reach."""
+        out = grasp[:2] - (self._home[:2] + BASE_FROM_HOME)
+        reach = float(np.linalg.norm(out))
+        amount = MAX_PITCH * float(np.clip((reach - PITCH_FROM) / (PITCH_FULL - PITCH_FROM), 0.0, 1.0))
+        lean = np.array([np.sin(yaw), -np.cos(yaw)])  # where a positive pitch leans the approach axis at this yaw
+        return amount * float(lean @ out) / max(reach, 1e-9)
+
     def _blocked(self, step: Step, attempt: int) -> bool:
         """After the descent: the hand stopped well above the grasp point, or the object is no longer there."""
         grasp, _ = self._grasp_pose(step, attempt)
@@ -243,7 +266,10 @@ class ScriptedExpert:
             return False
         release = self._place_eef(step, offset)
         yield from self._move(release, self._yaw, CLOSE, 0.5 * style.speed, tol=0.005)
-        yield from self._gripper(OPEN)
+        if OBJECTS[step.obj].style == "rim":
+            yield from self._let_go(step.obj_slot)
+        else:
+            yield from self._gripper(OPEN)
         retreat = self._eef() + [0, 0, 0.08]
         place = TARGETS[step.target]
         if place.rim is not None:  # fingertips well above the rim before moving sideways
@@ -267,6 +293,28 @@ class ScriptedExpert:
         yield from self._move(down, self._yaw, CLOSE, 0.5 * style.speed, tol=0.006)
         yield from self._release()
         yield from self._move(self._eef() + [0, 0, 0.05], self._yaw, OPEN, style.speed, tol=0.02)
+
+    def _let_go(self, slot: int, max_steps: int = 16) -> Actions:
+        """Open the fingers on a set-down rim-held object, moving the hand towards the cup's axis as they open.
+
+        A wall of LIBERO's bowl is a ring of flat boxes, and the outer pad can wedge between two of them: opening
+        in place, that finger dragged the bowl 4 cm along (off the plate). Moving the hand inwards as the fingers
+        open (half the opening keeps the outer pad in place, the rest makes up for the servo's lag) leaves the outer
+        pad about where it was; the inner one (inside the cup) moves through free space.
+        """
+        hold, width0 = self._eef(), self._width()
+        inward = self._pose(slot)[:2] - hold[:2]
+        inward /= max(float(np.linalg.norm(inward)), 1e-9)
+        last, still = width0, 0
+        for t in range(max_steps):
+            shift = min(LET_GO_GAIN * max(self._width() - width0, 0.0), LET_GO_SHIFT)
+            yield self._servo(hold + np.r_[shift * inward, 0.0], OPEN)
+            width = self._width()
+            still = still + 1 if abs(width - last) < 2e-4 else 0
+            last = width
+            if t >= 8 and still >= 2:
+                break
+        self.trace.append(("let-go", t + 1, True))
 
     def _release(self, gap: float = 0.03) -> Actions:
         """Open the fingers until they have moved ``gap`` apart (or are fully open)."""
@@ -310,6 +358,7 @@ class ScriptedExpert:
             # the one facing where the hand started (the robot's side), which keeps the reach short and
             # the hand clear of the cup's far side, without turning the wrist much.
             centre = pose[:3] + rot @ np.array([*spec.rim_center, 0.0])
+            base = self._home[:2] + BASE_FROM_HOME
             home = self._home[:2] - centre[:2]
             home /= max(np.linalg.norm(home), 1e-9)
             away = centre[:2] - self._pose(step.target_slot)[:2]
@@ -326,10 +375,12 @@ class ScriptedExpert:
                 radial = rot @ local
                 flat = np.array([radial[0], radial[1], 0.0]) / max(np.linalg.norm(radial[:2]), 1e-9)
                 yaw = wrap_yaw(np.arctan2(flat[1], flat[0]) - np.pi / 2, self._yaw)
-                score = float((home + away + prefer) @ flat[:2]) - abs(yaw - self._yaw)  # big turns strain the arm
+                candidate = centre + rot @ (spec.rim_radius * local + np.array([0.0, 0.0, spec.height + dz]))
+                reach = float(np.linalg.norm(candidate[:2] - base))
+                score = (float((home + away + prefer) @ flat[:2]) - abs(yaw - self._yaw)  # big turns strain the arm
+                         - REACH_WEIGHT * max(0.0, reach - REACH_SOFT))  # far points: the arm cannot get down there
                 if score > best_score:
-                    best_score, direction = score, flat
-                    point = centre + rot @ (spec.rim_radius * local + np.array([0.0, 0.0, spec.height + dz]))
+                    best_score, direction, point = score, flat, candidate
             # the fingers close along the radial direction, i.e. across the wall
             return point, wrap_yaw(np.arctan2(direction[1], direction[0]) - np.pi / 2, self._yaw)
         best = None
