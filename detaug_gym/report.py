@@ -56,6 +56,12 @@ def _fmt(value: float) -> str:
     return "-" if value != value else f"{value:.1f}"
 
 
+def _mean(values: list[float]) -> float:
+    """Mean over the defined values; NaN (shown as "-") when none is, e.g. Avoid on the obstacle-free level."""
+    defined = [v for v in values if v == v]
+    return float(np.mean(defined)) if defined else float("nan")
+
+
 def table_rows(summary) -> tuple[list[str], list[list[str]]]:
     """Rows of the Table I layout: per method, per suite Clean/Total/Avoid averaged over levels, then Average."""
     methods = sorted({k[0] for k in summary})
@@ -67,10 +73,10 @@ def table_rows(summary) -> tuple[list[str], list[list[str]]]:
         row, per_suite = [method], []
         for suite in suites:
             cells = [v for k, v in summary.items() if k[0] == method and k[1] == suite]
-            means = {m: np.nanmean([c[m] for c in cells]) if cells else float("nan") for m in METRICS}
+            means = {m: _mean([c[m] for c in cells]) for m in METRICS}
             per_suite.append(means)
             row += [_fmt(means[m]) for m in METRICS[:3]]
-        row += [_fmt(np.nanmean([p[m] for p in per_suite])) for m in METRICS]
+        row += [_fmt(_mean([p[m] for p in per_suite])) for m in METRICS]
         rows.append(row)
     return header, rows
 

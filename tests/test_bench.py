@@ -103,3 +103,26 @@ def test_sb3_evaluate_policy_runs_a_registered_policy():
     mean, std = evaluate_policy(SB3Adapter(make_policy("random")), env, n_eval_episodes=2)
     assert mean == 0.0 and std == 0.0  # random actions never place the cube in 10 steps
     env.close()
+
+
+def test_free_level_table_shows_no_avoid_and_warns_nothing():
+    """Avoid is undefined without an obstacle: the table shows "-" there, and averages only defined cells."""
+    import warnings
+
+    from detaug_gym.report import summarise, table_rows
+
+    def record(level, success, collision):
+        return {"method": "m", "suite": "spatial", "level": level, "success": success, "collision": collision,
+                "termination": "success" if success else "timeout"}
+
+    free = [record("Free", True, False), record("Free", False, False)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        header, rows = table_rows(summarise(free))
+        cells = dict(zip(header, rows[0]))
+        assert cells["Spatial Avoid"] == "-" and cells["Average Avoid"] == "-"
+        assert cells["Spatial Total"] == "50.0" and cells["Average Timeout"] == "50.0"
+        _, rows = table_rows(summarise(free + [record("L2", True, True), record("L2", True, False)]))
+    cells = dict(zip(header, rows[0]))
+    assert cells["Spatial Avoid"] == "50.0"  # only the L2 cell defines it
+    assert cells["Spatial Total"] == "75.0"  # mean of the levels' 50 and 100
