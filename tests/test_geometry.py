@@ -326,3 +326,44 @@ def test_mvee_recovers_an_ellipsoid_from_its_surface():
     np.testing.assert_allclose(ellipsoid.centre, [0.1, 0.2, 0.9], atol=1e-4)
     with pytest.raises(ValueError):
         min_volume_ellipsoid(np.c_[rng.normal(size=(20, 2)), np.zeros(20)])  # flat
+
+
+# ---------------------------------------------------------------------------------------------- held object
+def test_held_object_is_found_only_with_closed_fingers_and_an_object_at_hand():
+    from detaug_gym.geometry import held_object
+
+    obs = _box_obs(np.array([0.0, 0.0, 1.0]), [0.03, 0.03, 0.08])
+    obs |= {"eef_pos": np.array([0.3, 0.0, 1.0]), "object_mask": np.ones(2, np.float32),
+            "object_poses": np.array([[0.3, 0.065, 0.96, 0, 0, 0, 1], [0.6, 0.3, 0.9, 0, 0, 0, 1]], np.float32)}
+    assert held_object(obs) is None  # fingers open (the helper's 0.08 m)
+    obs["gripper_qpos"] = np.array([0.004, -0.004], np.float32)
+    offset, radius = held_object(obs)
+    np.testing.assert_allclose(offset, [0.0, 0.065, -0.04], atol=1e-6)
+    assert radius == pytest.approx(0.065, abs=1e-6)  # horizontal grip-to-origin distance: a rim-held bowl
+    obs["object_poses"][0, :3] = [0.6, 0.6, 0.9]  # nothing within reach
+    assert held_object(obs) is None
+
+
+def test_held_object_cost_catches_a_carry_that_the_robot_points_miss():
+    """The hand passes 8 cm beside the obstacle; the bowl it holds 6.5 cm to that side sweeps through it."""
+    from detaug_gym.geometry import held_object_cost
+
+    obs = _box_obs(np.array([0.0, 0.0, 1.0]), [0.03, 0.03, 0.08])
+    obs |= {"eef_pos": np.array([0.3, -0.11, 1.0]), "object_mask": np.ones(1, np.float32),
+            "gripper_qpos": np.array([0.004, -0.004], np.float32),
+            "object_poses": np.array([[0.3, -0.045, 0.96, 0, 0, 0, 1]], np.float32)}
+    x = torch.linspace(0.3, -0.3, 30, dtype=torch.float64)
+    beside = torch.stack([x, torch.full_like(x, -0.11), torch.full_like(x, 1.0)], -1)  # (T, 3)
+    away = beside - torch.tensor([0.0, 0.3, 0.0], dtype=torch.float64)
+    eef = torch.stack([beside, away])  # (B=2, T, 3)
+    closed = torch.tensor([0.004, -0.004], dtype=torch.float64).expand(2, 30, 2)
+    cost = held_object_cost(eef, closed, obs)
+    assert cost.shape == (2,) and cost[0] > 0.1 and cost[1] == 0.0
+    opened = closed.clone()
+    opened[0, 10:] = torch.tensor([0.04, -0.04], dtype=torch.float64)  # let go before reaching the obstacle
+    assert held_object_cost(eef, opened, obs)[0] == 0.0
+    eef_grad = beside.clone().requires_grad_(True)
+    held_object_cost(eef_grad, closed[0], obs).backward()
+    assert eef_grad.grad[..., 1].sum() > 0  # descending it moves the hand (and bowl) to -y, away from the box
+    obs["gripper_qpos"] = np.array([0.04, -0.04], np.float32)  # nothing held at the replan
+    assert torch.equal(held_object_cost(eef, closed, obs), torch.zeros(2, dtype=torch.float64))

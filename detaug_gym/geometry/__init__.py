@@ -25,8 +25,8 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "costs": ("COST_KINDS", "clearance_cost", "penetration_cost", "plan_collision_cost", "sphere_cost",
-              "surface_hinge_cost"),
+    "costs": ("COST_KINDS", "clearance_cost", "held_object", "held_object_cost", "penetration_cost",
+              "plan_collision_cost", "sphere_cost", "surface_hinge_cost"),
     "ellipsoid": ("Ellipsoid", "min_volume_ellipsoid"),
     "kinematics": ("KinematicsResult", "PandaKinematics", "panda_model"),
     "robot_points": ("RobotGeometry", "RobotSpheres", "RobotSurfacePoints"),

@@ -9,6 +9,9 @@ so in the joint plan):
 - ``clearance``: sum of ``max(0, margin - sdf)``; also penalises near misses (the paper's ablation).
 - ``spheres``: sum of ``max(0, margin + r - sdf(centre))`` over the end-effector spheres (CAPE's guidance).
 
+:func:`held_object_cost` adds the object in the hand, which the robot's points do not cover: a carried bowl
+can push the obstacle while the arm stays clear of it.
+
 Shapes: ``B`` plans (DetAug's K candidates), ``T`` plan steps, ``P`` robot points, ``S`` spheres.
 """
 
@@ -144,6 +147,66 @@ def plan_collision_cost(joint_plan: torch.Tensor, obs: dict[str, np.ndarray] | N
         centres = robot.spheres.world(fk)
         return sphere_cost(centres, robot.spheres.radii_tensor(centres), sdf, margin)
     return surface_hinge_cost(fk, robot.points, sdf, margin).sum(-1)
+
+
+HELD_REACH = 0.10  # m: an object whose origin is this close to the grip site, with the fingers closed, is held
+HELD_WIDTH = 0.06  # m: finger opening below which the hand counts as closed (open: ~0.08)
+HELD_RADIUS = (0.03, 0.09)  # m: bounds of the held object's sphere
+
+
+def held_object(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, float] | None:
+    """The object in the hand at this observation, as ``(offset from the grip site (3,), sphere radius)``.
+
+    Held = fingers closed (opening < :data:`HELD_WIDTH`) and the nearest present object's origin within
+    :data:`HELD_REACH` of the grip site. The observation has no object sizes, so the sphere's radius is the
+    horizontal distance from the grip site to the object's origin (a rim-held bowl: its rim radius), clipped to
+    :data:`HELD_RADIUS`. ``None`` when nothing is held.
+    """
+    if "object_poses" not in obs or "gripper_qpos" not in obs:
+        return None
+    fingers = np.asarray(obs["gripper_qpos"], np.float64).reshape(-1)
+    if abs(fingers[0] - fingers[-1]) >= HELD_WIDTH:
+        return None
+    eef = np.asarray(obs["eef_pos"], np.float64)
+    poses = np.asarray(obs["object_poses"], np.float64).reshape(-1, 7)
+    mask = np.asarray(obs.get("object_mask", np.ones(len(poses))), np.float64).reshape(-1) > 0.5
+    if not mask.any():
+        return None
+    offsets = poses[mask, :3] - eef
+    nearest = int(np.argmin(np.linalg.norm(offsets, axis=1)))
+    offset = offsets[nearest]
+    if np.linalg.norm(offset) > HELD_REACH:
+        return None
+    return offset, float(np.clip(np.linalg.norm(offset[:2]), *HELD_RADIUS))
+
+
+def held_object_cost(eef_plan: torch.Tensor, finger_plan: torch.Tensor, obs: dict[str, np.ndarray],
+                     sdf: SDF | None = None, kind: str = "penetration", margin: float | None = None) -> torch.Tensor:
+    """Cost of the held object (a sphere carried rigidly with the grip site) along each plan.
+
+    Args:
+        eef_plan: ``(..., T, 3)`` planned grip-site positions.
+        finger_plan: ``(..., T, 2)`` planned finger positions; the object counts only while they stay closed.
+        obs: the observation at the replan (what is held, where, the obstacle).
+        sdf: a prebuilt obstacle SDF; default :func:`obstacle_sdf` of ``obs``.
+        kind, margin: as :func:`plan_collision_cost` (``spheres`` is treated like ``clearance``).
+
+    Returns:
+        ``(...)`` sum over plan steps of ``max(0, margin + r - sdf(centre))``; zeros when nothing is held.
+    """
+    if kind not in COST_KINDS:
+        raise ValueError(f"unknown cost kind {kind!r}; valid: {', '.join(COST_KINDS)}")
+    eef_plan = torch.as_tensor(eef_plan)
+    held = held_object(obs)
+    if held is None:
+        return eef_plan.new_zeros(eef_plan.shape[:-2])
+    offset, radius = held
+    margin = DEFAULT_MARGIN[kind] if margin is None else float(margin)
+    sdf = obstacle_sdf(obs) if sdf is None else sdf
+    centres = eef_plan + eef_plan.new_tensor(offset)  # (..., T, 3): the grasp keeps the offset
+    finger_plan = torch.as_tensor(finger_plan, dtype=eef_plan.dtype)
+    closed = ((finger_plan[..., 0] - finger_plan[..., -1]).abs() < HELD_WIDTH).to(eef_plan.dtype)
+    return (torch.relu(margin + radius - sdf(centres)) * closed).sum(-1)
 
 
 def _aligned_default(obs: dict[str, np.ndarray]) -> RobotGeometry:

@@ -7,6 +7,11 @@ into the observed obstacle (``detaug_gym.geometry``), and the best plan is execu
 plans (e.g. no obstacle in view, all costs zero) the least bent one (smallest label norm) wins, so free
 space is crossed the way the unaugmented demos cross it.
 
+The score also covers the object in the hand (``held_object``, default on): a sphere carried with the grip
+site while the plan's fingers stay closed. The paper scores the robot only; in the bench half of the
+obstacle collisions came without any robot contact, from the carried bowl. ``held_object=False`` is the
+paper's score.
+
 Options reproduce the paper's ablations: ``k``, ``latch`` (keep the first choice for the episode),
 ``labels="zero"`` (K samples with the unbent label), ``cost="clearance"``, and the selection-vs-guidance
 variants ``mode="null_guidance"`` (null token + guidance, no selection), ``"guided_select"`` (guidance and
@@ -51,12 +56,14 @@ class DetAugPolicy(FlowPolicy):
         cost: ``"penetration"`` (paper) or ``"clearance"``.
         mode: one of :data:`MODES` (selection vs guidance ablation).
         guidance_scale, guidance_t_min: lambda and chi of the guidance variants.
+        held_object: also score the object in the hand (:func:`detaug_gym.geometry.held_object_cost`).
         action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
     """
 
     def __init__(self, suite: str = "spatial", checkpoint: str | None = None, k: int = 32, latch: bool = False,
                  labels: str = "random", cost: str = "penetration", mode: str = "select",
-                 guidance_scale: float = 3.0, guidance_t_min: float = 0.8, **options) -> None:
+                 guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,
+                 **options) -> None:
         ckpt = load_checkpoint(checkpoint or zoo_dir("detaug", suite))
         if not ckpt.network.config.dit.label_dim:
             raise ValueError(f"{ckpt.path} was trained without labels ({ckpt.method!r}); DetAug needs a "
@@ -71,6 +78,7 @@ class DetAugPolicy(FlowPolicy):
         super().__init__(ckpt, **options)
         self.k, self.latch, self.label_source, self.cost_kind, self.mode = int(k), latch, labels, cost, mode
         self.guidance_scale, self.guidance_t_min = guidance_scale, guidance_t_min
+        self.held_object = bool(held_object)
         self.diagnostics: list[ReplanDiagnostics] = []
         self._latched: np.ndarray | None = None
         self._rng = np.random.default_rng()
@@ -113,23 +121,30 @@ class DetAugPolicy(FlowPolicy):
 
     def score(self, plans: torch.Tensor, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """(K,) collision cost of plans (K, H, D) against the observed obstacle (0 without one)."""
-        from detaug_gym.geometry import plan_collision_cost
-
         if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) == 0.0:
             return np.zeros(len(plans))
-        joints = plans[..., self.layout.key_slice("robot_joint_pos")].double()
         with torch.no_grad():
-            return plan_collision_cost(joints, dict(obs), kind=self.cost_kind).numpy()
+            return self._plan_cost(plans.double(), dict(obs)).numpy()
+
+    def _plan_cost(self, plans: torch.Tensor, obs: dict[str, np.ndarray]) -> torch.Tensor:
+        """(...) cost of plans (..., H, D): the robot's points, plus the held object's sphere if enabled."""
+        from detaug_gym.geometry import held_object_cost, obstacle_sdf, plan_collision_cost
+
+        sdf = obstacle_sdf(obs)
+        cost = plan_collision_cost(plans[..., self.layout.key_slice("robot_joint_pos")], obs, kind=self.cost_kind,
+                                   sdf=sdf)
+        if self.held_object:
+            cost = cost + held_object_cost(plans[..., self.layout.key_slice("eef_pos")],
+                                           plans[..., self.layout.key_slice("gripper_qpos")], obs, sdf,
+                                           kind=self.cost_kind)
+        return cost
 
     def _guidance(self, obs: Mapping[str, np.ndarray]) -> Guidance | None:
         if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) == 0.0:
             return None
-        from detaug_gym.geometry import plan_collision_cost
-
-        joint_slice = self.layout.key_slice("robot_joint_pos")
         observation = dict(obs)
 
         def cost(plan: torch.Tensor, t: float) -> torch.Tensor:
-            return plan_collision_cost(plan[..., joint_slice], observation, kind=self.cost_kind)
+            return self._plan_cost(plan, observation)
 
         return Guidance(cost, scale=self.guidance_scale, t_min=self.guidance_t_min)
