@@ -2,11 +2,11 @@
 
 Commands (one per method; rerunning the same command resumes an interrupted run)::
 
-    python -m detaug_gym.train --method base    --data data/spatial/demos.hdf5     --out policies/base/spatial
-    python -m detaug_gym.train --method detaug  --data data/spatial/augmented.hdf5 --out policies/detaug/spatial
-    python -m detaug_gym.train --method demogen --data data/spatial/demogen.hdf5   --out policies/demogen/spatial
+    python -m detaug_gym.train --method base    --data data/spatial.hdf5         --out policies/base/spatial
+    python -m detaug_gym.train --method detaug  --data data/spatial_detaug.hdf5  --out policies/detaug/spatial
+    python -m detaug_gym.train --method demogen --data data/spatial_demogen.hdf5 --out policies/demogen/spatial
     # graft the label onto the trained base policy and train only the adapter (paper, "Adapting ...")
-    python -m detaug_gym.train --method detaug --data data/spatial/augmented.hdf5 \\
+    python -m detaug_gym.train --method detaug --data data/spatial_detaug.hdf5 \\
         --out policies/detaug-adapter/spatial --init-from policies/base/spatial --adapter-only
     python -m detaug_gym.train --help       # every option with its meaning
 
