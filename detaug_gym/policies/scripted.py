@@ -294,7 +294,7 @@ class ScriptedExpert:
         yield from self._release()
         yield from self._move(self._eef() + [0, 0, 0.05], self._yaw, OPEN, style.speed, tol=0.02)
 
-    def _let_go(self, slot: int, max_steps: int = 16) -> Actions:
+    def _let_go(self, slot: int) -> Actions:
         """Open the fingers on a set-down rim-held object, moving the hand towards the cup's axis as they open.
 
         A wall of LIBERO's bowl is a ring of flat boxes, and the outer pad can wedge between two of them: opening
@@ -302,19 +302,9 @@ class ScriptedExpert:
         open (half the opening keeps the outer pad in place, the rest makes up for the servo's lag) leaves the outer
         pad about where it was; the inner one (inside the cup) moves through free space.
         """
-        hold, width0 = self._eef(), self._width()
-        inward = self._pose(slot)[:2] - hold[:2]
+        inward = self._pose(slot)[:2] - self._eef()[:2]
         inward /= max(float(np.linalg.norm(inward)), 1e-9)
-        last, still = width0, 0
-        for t in range(max_steps):
-            shift = min(LET_GO_GAIN * max(self._width() - width0, 0.0), LET_GO_SHIFT)
-            yield self._servo(hold + np.r_[shift * inward, 0.0], OPEN)
-            width = self._width()
-            still = still + 1 if abs(width - last) < 2e-4 else 0
-            last = width
-            if t >= 8 and still >= 2:
-                break
-        self.trace.append(("let-go", t + 1, True))
+        yield from self._gripper(OPEN, drift=inward, label="let-go")
 
     def _release(self, gap: float = 0.03) -> Actions:
         """Open the fingers until they have moved ``gap`` apart (or are fully open)."""
@@ -457,23 +447,29 @@ class ScriptedExpert:
                 return
         self.trace.append(("move", steps + timeout, False))
 
-    def _gripper(self, command: float, max_steps: int = 16) -> Actions:
+    def _gripper(self, command: float, max_steps: int = 16, drift: np.ndarray | None = None,
+                 label: str = "grip") -> Actions:
         """Hold the pose and open/close the fingers until they stop moving.
 
         The Panda gripper's command ramps (0.25 per step from -1 to +1), so the full grip force needs at
-        least 8 steps even when the fingers stop on the object earlier.
+        least 8 steps even when the fingers stop on the object earlier. With ``drift`` (a unit xy direction)
+        the held position moves along it by ``LET_GO_GAIN`` per m the fingers have opened, at most
+        ``LET_GO_SHIFT``.
         """
-        hold = self._eef()
-        last = self._width()
-        still = 0
+        hold, width0 = self._eef(), self._width()
+        last, still = width0, 0
         for t in range(max_steps):
-            yield self._servo(hold, command)
+            target = hold
+            if drift is not None:
+                shift = min(LET_GO_GAIN * max(self._width() - width0, 0.0), LET_GO_SHIFT)
+                target = hold + np.r_[shift * drift, 0.0]
+            yield self._servo(target, command)
             width = self._width()
             still = still + 1 if abs(width - last) < 2e-4 else 0
             last = width
             if t >= 8 and still >= 2:
                 break
-        self.trace.append(("grip", t + 1, True))
+        self.trace.append((label, t + 1, True))
 
     def _rotation_error(self) -> float:
         current = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
