@@ -8,6 +8,16 @@ Demo ``i`` of a task starts from init state ``i % 50`` with seed ``seed + 1000 *
 expert). A failed attempt is not written; attempts continue with the next ``i`` until ``--demos`` demos
 are kept or ``--max-attempts`` (default ``2 * demos``) are used. Every kept demo is flushed to disk at once,
 so an interrupted run resumes where it stopped when started again with the same arguments.
+
+``--action-noise SIGMA`` collects DART-style demos (Laskey et al., 2017): the env receives the expert's
+command plus a temporally correlated disturbance on the position part (an Ornstein-Uhlenbeck process with
+stationary std SIGMA in action units, 1 = 5 cm, and correlation time ``--noise-tau`` steps), while
+``actions`` records the expert's clean command. The arm wanders off the expert's path and the demo shows
+the expert steering back, states a policy trained on clean demos never sees. What was sent is kept as
+``executed_actions`` (replay uses it). Give such a run its own ``--seed`` when it appends to a clean file:
+
+    python -m detaug_gym.collect --env SafeLibero-Spatial-Free-v0 --task all --demos 50 --seed 500 \
+        --action-noise 0.3 --out data/spatial.hdf5
 """
 
 from __future__ import annotations
@@ -48,6 +58,42 @@ class CollectArgs:
     """Episodes tried per task before giving up (default ``2 * demos``)."""
     controller: str | None = None
     """Env controller (``fast`` / ``stock``); default: the env's default."""
+    action_noise: float = 0.0
+    """Stationary std of the position disturbance added to the executed action (0: clean demos)."""
+    noise_tau: float = 10.0
+    """Correlation time of the disturbance, in env steps."""
+
+
+@dataclass
+class ActionNoise:
+    """Ornstein-Uhlenbeck disturbance on an action's position part (DART-style collection).
+
+    ``n_{t+1} = rho n_t + sqrt(1 - rho^2) sigma eps`` with ``rho = exp(-1 / tau)``, so every step has std
+    ``sigma`` and neighbouring steps push the same way: the arm drifts centimetres off the expert's path
+    instead of jittering in place. The gripper and rotation parts are sent unchanged.
+    """
+
+    sigma: float
+    tau: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.sigma < 0 or self.tau <= 0:
+            raise ValueError(f"action noise needs sigma >= 0 and tau > 0, got sigma={self.sigma}, tau={self.tau}")
+        self._rng = np.random.default_rng()
+        self._state = np.zeros(3)
+
+    def reset(self, seed: int) -> None:
+        self._rng = np.random.default_rng(seed)
+        self._state = self.sigma * self._rng.standard_normal(self._state.shape)
+
+    def __call__(self, action: np.ndarray) -> np.ndarray:
+        """The action to execute: ``action`` (7,) with the disturbance added to its position part, clipped."""
+        rho = np.exp(-1.0 / self.tau)
+        self._state = rho * self._state + np.sqrt(1 - rho**2) * self.sigma * self._rng.standard_normal(
+            self._state.shape)
+        out = np.array(action, dtype=np.float32)
+        out[:3] = np.clip(out[:3] + self._state, -1.0, 1.0)
+        return out
 
 
 @dataclass
@@ -65,26 +111,35 @@ def episode_seed(base: int, task: int, index: int) -> int:
     return base + SEED_STRIDE * task + index
 
 
-def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: str) -> tuple[Demo, bool]:
-    """Run one episode and record it; returns the demo and whether it succeeded."""
+def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: str,
+                   noise: ActionNoise | None = None) -> tuple[Demo, bool]:
+    """Run one episode and record it; returns the demo and whether it succeeded.
+
+    With ``noise`` the env gets the disturbed action and the demo records the policy's clean one as
+    ``actions`` (and the disturbed one as ``executed_actions``).
+    """
     options = {"init_state": init_state}
     if _num_tasks(env) > 1:
         options["task"] = task
     obs, info = env.reset(seed=seed, options=options)
     policy.reset(seed=seed)
+    if noise is not None:
+        noise.reset(seed)
     base = env.unwrapped
     keys = [k for k in obs if not k.startswith(OBSTACLE_PREFIX)]
     observations = {k: [] for k in keys}
-    states, actions, rewards, dones = [], [], [], []
+    states, actions, executed, rewards, dones = [], [], [], [], []
     done = False
     while not done:
         action = np.asarray(policy.act(obs), dtype=np.float32)
+        sent = action if noise is None else noise(action)
         for k in keys:
             observations[k].append(obs[k])
         states.append(base.get_state())
-        obs, reward, terminated, truncated, info = env.step(action)
+        obs, reward, terminated, truncated, info = env.step(sent)
         done = terminated or truncated
         actions.append(action)
+        executed.append(sent)
         rewards.append(reward)
         dones.append(float(terminated))
     task_key = getattr(getattr(base, "task_spec", None), "key", env_id)
@@ -96,6 +151,8 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
         "seed": int(seed),
         "controller": json.dumps(controller_settings(base)),
     }
+    if noise is not None:
+        attrs["action_noise"] = json.dumps({"sigma": noise.sigma, "tau": noise.tau, "dims": "xyz"})
     actions_arr = np.asarray(actions, dtype=np.float32)
     demo = Demo(
         actions=actions_arr,
@@ -105,6 +162,7 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
         attrs=attrs,
         rewards=np.asarray(rewards, dtype=np.float32),
         dones=np.asarray(dones, dtype=np.float32),
+        executed_actions=None if noise is None else np.asarray(executed, dtype=np.float32),
     )
     return demo, bool(info.get("is_success", False))
 
@@ -143,6 +201,7 @@ def collect(args: CollectArgs) -> list[TaskStats]:
     env = gym.make(args.env, **env_kwargs)
     tasks = parse_tasks(args.task, _num_tasks(env))
     policy = make_policy(args.policy)
+    noise = ActionNoise(args.action_noise, args.noise_tau) if args.action_noise > 0 else None
     env_args = {"env_name": args.env, "env_version": getattr(detaug_gym, "__version__", "0"),
                 "type": "detaug_gym", "env_kwargs": env_kwargs}
     max_attempts = args.max_attempts or 2 * args.demos
@@ -161,7 +220,7 @@ def collect(args: CollectArgs) -> list[TaskStats]:
                         st.resumed += 1
                         bar.update(1)
                         continue
-                    demo, ok = record_episode(env, policy, st.task, init_state, seed, args.env)
+                    demo, ok = record_episode(env, policy, st.task, init_state, seed, args.env, noise)
                     st.attempts += 1
                     if ok:
                         writer.append(demo)
@@ -196,11 +255,19 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     parser.add_argument("--max-attempts", type=int, default=None, help="episodes per task (default 2*demos)")
     parser.add_argument("--controller", default=None, help="env controller: fast or stock")
+    parser.add_argument("--action-noise", type=float, default=0.0,
+                        help="std of a correlated disturbance on the executed position action, 1 = 5 cm "
+                             "(DART-style recovery demos; default 0: clean)")
+    parser.add_argument("--noise-tau", type=float, default=10.0,
+                        help="correlation time of --action-noise in env steps (default 10)")
     ns = parser.parse_args(argv)
     if ns.demos < 1:
         parser.error("--demos must be >= 1")
+    if ns.action_noise < 0 or ns.noise_tau <= 0:
+        parser.error(f"--action-noise must be >= 0 and --noise-tau > 0, got {ns.action_noise} and {ns.noise_tau}")
     args = CollectArgs(env=ns.env, out=ns.out, task=ns.task, demos=ns.demos, policy=ns.policy, seed=ns.seed,
-                       max_attempts=ns.max_attempts, controller=ns.controller)
+                       max_attempts=ns.max_attempts, controller=ns.controller,
+                       action_noise=ns.action_noise, noise_tau=ns.noise_tau)
     start = time.perf_counter()
     stats = collect(args)
     print(format_table(stats))

@@ -59,7 +59,8 @@ class TrainConfig:
     method: str = "base"
     """base (no label, unaugmented data) | detaug (labels + null token) | demogen (obstacle point cloud)."""
     data: str = ""
-    """Demonstration HDF5 (data/demo_<i>/{actions, obs/...}, plus label or obstacle_points)."""
+    """Demonstration HDF5 (data/demo_<i>/{actions, obs/...}, plus label or obstacle_points); several files,
+    comma-separated, are pooled (a demo without a label gets the zero label)."""
     out: str = ""
     """Output folder, e.g. policies/<method>/<suite>/."""
     steps: int = 6_000
@@ -141,8 +142,9 @@ def check_config(cfg: TrainConfig) -> None:
     if not cfg.data:
         raise SystemExit("error: --data is required: the demonstrations HDF5 to learn from "
                          "(data/demo_<i>/{actions, obs/...}), made by the collection or augmentation commands")
-    if not Path(cfg.data).is_file():
-        raise SystemExit(f"error: --data {cfg.data}: no such file")
+    for path in data_files(cfg):
+        if not Path(path).is_file():
+            raise SystemExit(f"error: --data {path}: no such file")
     if not cfg.out:
         raise SystemExit(f"error: --out is required, e.g. --out policies/{cfg.method}/<suite>")
     if cfg.adapter_only and not cfg.init_from:
@@ -199,8 +201,13 @@ def build_network(cfg: TrainConfig, data: WindowDataset, init=None) -> FlowNetwo
     return network
 
 
+def data_files(cfg: TrainConfig) -> list[str]:
+    """The demonstration files named by ``--data`` (comma-separated)."""
+    return [part.strip() for part in cfg.data.split(",") if part.strip()]
+
+
 def load_data(cfg: TrainConfig, init=None) -> WindowDataset:
-    demos = read_demos(cfg.data, OBS_KEYS)
+    demos = [demo for path in data_files(cfg) for demo in read_demos(path, OBS_KEYS)]
     return WindowDataset(demos, cfg.horizon, PlanLayout(), OBS_KEYS, use_labels=cfg.method == "detaug",
                          n_points=cfg.n_points if cfg.method == "demogen" else 0,
                          normalizers=init.normalizers if init is not None else None, seed=cfg.seed)

@@ -150,3 +150,46 @@ def test_replay_reproduces_recorded_states(collected):
         env.close()
     assert states.shape == demo.states.shape
     np.testing.assert_allclose(states, demo.states, atol=1e-9)
+
+
+def test_action_noise_is_correlated_with_the_requested_std():
+    from detaug_gym.collect import ActionNoise
+
+    noise = ActionNoise(sigma=0.3, tau=10.0)
+    noise.reset(seed=3)
+    clean = np.zeros(7, np.float32)
+    clean[6] = 1.0
+    pushes = np.array([noise(clean) for _ in range(20_000)])
+    assert np.all(pushes[:, 3:] == clean[3:])  # rotation and gripper untouched
+    std = pushes[:, :3].std(axis=0)
+    np.testing.assert_allclose(std, 0.3, rtol=0.1)
+    lag1 = np.corrcoef(pushes[1:, 0], pushes[:-1, 0])[0, 1]
+    assert abs(lag1 - np.exp(-1 / 10)) < 0.03
+    with pytest.raises(ValueError, match="tau > 0"):
+        ActionNoise(sigma=0.3, tau=0.0)
+
+
+def test_noisy_collection_records_clean_actions_and_replays_what_was_sent(tmp_path):
+    import gymnasium as gym
+
+    from detaug_gym.augment.runner import select_sources
+    from detaug_gym.collect import CollectArgs, collect
+
+    path = tmp_path / "dart.hdf5"
+    stats = collect(CollectArgs(env="SafeLibero-Spatial-Free-v0", out=str(path), task="0", demos=1, seed=500,
+                                action_noise=0.3, max_attempts=4))
+    assert stats[0].kept == 1
+    demo = load(path)[0]
+    assert demo.executed_actions.shape == demo.actions.shape
+    pushed = demo.executed_actions[:, :3] - demo.actions[:, :3]
+    assert np.abs(pushed).max() > 0.2 and np.all(demo.executed_actions[:, 3:] == demo.actions[:, 3:])
+    # the expert steers against the push it felt on the previous step
+    assert np.corrcoef(demo.actions[1:, 0], pushed[:-1, 0])[0, 1] < -0.2
+    assert demo.attrs["action_noise"]["sigma"] == 0.3
+    env = gym.make(demo.attrs["env_id"])
+    try:
+        states = replay(env, demo)
+    finally:
+        env.close()
+    np.testing.assert_allclose(states, demo.states, atol=1e-9)
+    assert select_sources([demo]) == []  # augmentation cannot copy commands that did not move the arm

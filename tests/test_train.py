@@ -185,6 +185,17 @@ def test_missing_or_corrupt_checkpoint_names_the_train_command(tmp_path, detaug_
         load_checkpoint(broken)
 
 
+def test_data_files_are_pooled_and_unlabelled_demos_get_the_zero_label(tmp_path):
+    labelled = write_synthetic_demos(tmp_path / "aug.hdf5", n_demos=3, length=16, label_dim=4)
+    plain = write_synthetic_demos(tmp_path / "plain.hdf5", n_demos=2, length=16, seed=1)
+    cfg = TrainConfig(method="detaug", data=f"{labelled}, {plain}", out=str(tmp_path / "o"), **TINY)
+    data = train_module.load_data(cfg)
+    assert data.label_dim == 4 and len(data.labels) == 5
+    assert torch.count_nonzero(data.labels[:3]) > 0 and torch.count_nonzero(data.labels[3:]) == 0
+    with pytest.raises(SystemExit, match="missing.hdf5: no such file"):
+        train(replace(cfg, data=f"{labelled},{tmp_path / 'missing.hdf5'}"))
+
+
 def test_cli_errors_and_options(tmp_path):
     result = subprocess.run([sys.executable, "-m", "detaug_gym.train", "--method", "base"],
                             capture_output=True, text=True, timeout=120)

@@ -199,8 +199,10 @@ def run(args: RunArgs, progress: bool = True) -> RunStats:
 
 def select_sources(demos: list, limit: int | None = None) -> list:
     """The original (not augmented) demos to augment, in file order; with ``limit``, the first ``limit`` in
-    round-robin task order, so a time-boxed run gives every task its share."""
-    sources = [d for d in demos if not d.attrs.get("augmented", False)]
+    round-robin task order, so a time-boxed run gives every task its share. Demos collected with action
+    noise are left out: their clean ``actions`` are not what moved the arm, so a replay could not copy them."""
+    sources = [d for d in demos
+               if not d.attrs.get("augmented", False) and getattr(d, "executed_actions", None) is None]
     if limit is None:
         return sources
     order = sorted(range(len(sources)), key=lambda i: round_robin_key(sources, i))[:limit]

@@ -11,6 +11,8 @@ Layout (see ``docs/data.md``)::
         rewards, dones (T,)
         label         (L,)      float32, optional (augmented demos)
         obstacle_points (P, 3)  float32, optional (DemoGen demos)
+        executed_actions (T, 7) float32, optional (demos collected with ``--action-noise``: what was sent to
+                                the env; ``actions`` then holds the expert's clean commands, the targets)
 
 LIBERO's own demo files (``obs/joint_states``, ``obs/gripper_states``, ``obs/ee_pos``, ``obs/ee_ori``, ...)
 load through the same :func:`load`; their keys are mapped to ours and images are skipped.
@@ -61,6 +63,8 @@ class Demo:
         attrs: the demo group's attributes (env_id, task, init_state, seed, ...), JSON strings decoded.
         label: ``(L,)`` float32 or ``None``.
         obstacle_points: ``(P, 3)`` float32 or ``None``.
+        executed_actions: ``(T, 7)`` float32 sent to the env when it differs from ``actions`` (collection
+            with action noise, DART-style), else ``None``.
         name: group name inside ``data/`` (``"demo_3"``).
     """
 
@@ -73,6 +77,7 @@ class Demo:
     obstacle_points: np.ndarray | None = None
     rewards: np.ndarray | None = None
     dones: np.ndarray | None = None
+    executed_actions: np.ndarray | None = None
     name: str = ""
 
     def __len__(self) -> int:
@@ -193,6 +198,7 @@ def _read_demo(group, name: str) -> Demo:
         obstacle_points=optional("obstacle_points"),
         rewards=optional("rewards"),
         dones=optional("dones"),
+        executed_actions=optional("executed_actions"),
         name=name,
     )
 
@@ -273,6 +279,8 @@ class DatasetWriter:
         dones = demo.dones if demo.dones is not None else np.zeros(n, dtype=np.float32)
         group.create_dataset("rewards", data=np.asarray(rewards, dtype=np.float32))
         group.create_dataset("dones", data=np.asarray(dones, dtype=np.float32))
+        if demo.executed_actions is not None:
+            group.create_dataset("executed_actions", data=np.asarray(demo.executed_actions, dtype=np.float32))
         if demo.label is not None:
             group.create_dataset("label", data=np.asarray(demo.label, dtype=np.float32))
         if demo.obstacle_points is not None:
@@ -293,7 +301,8 @@ class DatasetWriter:
 
 
 def replay(env, demo: Demo, *, reset_seed: int | None = None) -> np.ndarray:
-    """Re-execute ``demo.actions`` from its recorded first state; returns the states before each action.
+    """Re-execute the demo's actions (``executed_actions`` when it has them) from its recorded first state;
+    returns the states before each action.
 
     The env is reset (to the demo's task and init state when its attributes name them, so the scene and
     any obstacle match), then the recorded first state is loaded and the actions are stepped. With a
@@ -314,7 +323,8 @@ def replay(env, demo: Demo, *, reset_seed: int | None = None) -> np.ndarray:
     base = env.unwrapped
     base.set_state(demo.states[0])
     out = []
-    for action in demo.actions:
+    actions = demo.actions if demo.executed_actions is None else demo.executed_actions
+    for action in actions:
         out.append(base.get_state())
         _, _, terminated, truncated, _ = env.step(action)
         if terminated or truncated:
