@@ -28,7 +28,9 @@ def build_parser(mode: str) -> argparse.ArgumentParser:
     parser.add_argument("--copies", type=int, default=8, help="augmented copies wanted per demo (default 8)")
     parser.add_argument("--mode", default="detaug", choices=sorted(MODES), help="augmentation (default detaug)")
     parser.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
-    parser.add_argument("--limit", type=int, default=None, help="augment only N source demos, taken task by task in turn (first demo of every task, then the second, ...)")
+    parser.add_argument("--limit", type=int, default=None,
+                        help="augment only N source demos, taken task by task in turn (first demo of every "
+                             "task, then the second, ...)")
     parser.add_argument("--plot", default=None, metavar="FILE.png",
                         help="also draw original and augmented eef paths of a few demos (paper Fig. 4)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
