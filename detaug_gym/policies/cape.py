@@ -5,10 +5,10 @@ every ``prefix_steps`` (2) env steps:
 
 1. the unexecuted remainder of the previous plan is shifted to start now (:func:`shift_plan`: drop the
    executed prefix, pad the end like the training windows);
-2. it is re-noised to flow time ``t_start = 1 - delta`` (0.92 here, delta = 0.08 in CAPE's convention; our
-   flow runs from t = 0 noise to t = 1 data), with the current robot state inpainted as always;
+2. it is re-noised to flow time ``t_start = 1 - delta`` (default 0.5; CAPE's delta = 0.08 is 0.92 in our
+   convention, where the flow runs from t = 0 noise to t = 1 data), with the current robot state inpainted;
 3. the remaining Euler steps are integrated (``refine_steps``; default the steps a ``flow_steps``
-   schedule has left after ``t_start``: 1 of 10) with guidance ``x <- x - lambda grad cost`` at every step
+   schedule has left after ``t_start``: 5 of 10) with guidance ``x <- x - lambda grad cost`` at every step
    with ``t >= chi`` (``guidance_t_min`` 0.8: every refine step, and the last two of a fresh plan);
 4. the first ``prefix_steps`` actions of the result are executed.
 
@@ -63,7 +63,9 @@ class CapePolicy(FlowPolicy):
         suite: zoo suite folder of the ``base`` policy.
         checkpoint: a checkpoint folder instead of the zoo's.
         prefix_steps: actions executed from each plan before re-noising the rest (CAPE: ~2).
-        t_start: flow time the remainder is re-noised to (1 - delta; 0.92).
+        t_start: flow time the remainder is re-noised to (1 - delta). Default 0.5: with the zoo's base, trained
+            on recovery demos, the paper's 0.92 never lets a plan change course (0 of 80 Spatial L1/L2 episodes
+            solved, the hand wanders above the bowl); 0.5 solved 14 of 80 (``docs/methods.md``).
         refine_steps: Euler steps from ``t_start`` to 1 (default: what ``flow_steps`` leaves, at least 1).
         guidance_scale: lambda, the gradient step (in normalised plan coordinates).
         guidance_t_min: chi, guidance acts at flow times ``t >= chi``.
@@ -76,7 +78,7 @@ class CapePolicy(FlowPolicy):
     """
 
     def __init__(self, suite: str = "spatial", checkpoint: str | None = None, prefix_steps: int = 2,
-                 t_start: float = 0.92, refine_steps: int | None = None, guidance_scale: float = 3.0,
+                 t_start: float = 0.5, refine_steps: int | None = None, guidance_scale: float = 3.0,
                  guidance_t_min: float = 0.8, sphere_radius: float = EEF_SPHERE_RADIUS,
                  margin: float = DEFAULT_MARGIN["spheres"], guide: str = "both", action_gain: float = 0.25,
                  track_cost: bool = False, **options) -> None:
