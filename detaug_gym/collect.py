@@ -14,10 +14,11 @@ command plus a temporally correlated disturbance on the position part (an Ornste
 stationary std SIGMA in action units, 1 = 5 cm, and correlation time ``--noise-tau`` steps), while
 ``actions`` records the expert's clean command. The arm wanders off the expert's path and the demo shows
 the expert steering back, states a policy trained on clean demos never sees. What was sent is kept as
-``executed_actions`` (replay uses it). Give such a run its own ``--seed`` when it appends to a clean file:
+``executed_actions`` (replay uses it). Give such a run its own ``--seed``, so that its demos never share a
+(task, init state, seed) with the clean file's, and pool the two files when training:
 
     python -m detaug_gym.collect --env SafeLibero-Spatial-Free-v0 --task all --demos 50 --seed 500 \
-        --action-noise 0.3 --out data/spatial.hdf5
+        --action-noise 0.3 --max-attempts 250 --out data/spatial_noisy.hdf5
 """
 
 from __future__ import annotations
@@ -263,8 +264,10 @@ def main(argv: list[str] | None = None) -> None:
     ns = parser.parse_args(argv)
     if ns.demos < 1:
         parser.error("--demos must be >= 1")
-    if ns.action_noise < 0 or ns.noise_tau <= 0:
-        parser.error(f"--action-noise must be >= 0 and --noise-tau > 0, got {ns.action_noise} and {ns.noise_tau}")
+    try:
+        ActionNoise(ns.action_noise, ns.noise_tau)  # the one place that validates the noise options
+    except ValueError as exc:
+        parser.error(f"--action-noise / --noise-tau: {exc}")
     args = CollectArgs(env=ns.env, out=ns.out, task=ns.task, demos=ns.demos, policy=ns.policy, seed=ns.seed,
                        max_attempts=ns.max_attempts, controller=ns.controller,
                        action_noise=ns.action_noise, noise_tau=ns.noise_tau)
