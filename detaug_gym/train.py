@@ -51,7 +51,7 @@ from detaug_gym.models.flow import Inpaint, flow_matching_loss
 from detaug_gym.models.network import FlowNetwork, NetworkConfig
 
 # Fields that may change when resuming with the same command (the rest must match the saved run).
-RESUMABLE_CHANGES = ("steps", "checkpoint_every", "threads", "progress", "log_every")
+RESUMABLE_CHANGES = ("steps", "checkpoint_every", "threads", "progress", "log_every", "action_steps")
 
 
 @dataclass
@@ -79,8 +79,14 @@ class TrainConfig:
     """EMA decay of the saved weights (ramped up over the first steps)."""
     label_dropout: float = 0.15
     """detaug: probability of replacing a label by the null token."""
+    zero_label_weight: float = 1.0
+    """detaug: sampling weight of windows from zero-label (unaugmented) demos relative to augmented ones;
+    above 1 spends more of training on the z = 0 behaviour the clean demos show."""
     horizon: int = 50
     """H: timesteps per plan."""
+    action_steps: int = 10
+    """N: actions the trained policy executes from each plan before it replans. Inference only: stored in
+    config.json's "policy" section as the checkpoint's default (a load can override it)."""
     steps_per_token: int = 5
     """Timesteps packed into one transformer token (divides horizon)."""
     d_model: int = 128
@@ -151,6 +157,11 @@ def check_config(cfg: TrainConfig) -> None:
         raise SystemExit("error: --adapter-only fine-tunes a trained policy: pass --init-from <checkpoint folder>")
     if cfg.steps < 1 or cfg.batch_size < 1 or not 0.0 <= cfg.label_dropout < 1.0:
         raise SystemExit("error: need steps >= 1, batch_size >= 1 and 0 <= label_dropout < 1")
+    if cfg.zero_label_weight <= 0.0 or (cfg.zero_label_weight != 1.0 and cfg.method != "detaug"):
+        raise SystemExit(f"error: --zero-label-weight must be > 0 and applies to --method detaug only, got "
+                         f"{cfg.zero_label_weight} with --method {cfg.method}")
+    if not 1 <= cfg.action_steps <= cfg.horizon:
+        raise SystemExit(f"error: --action-steps must lie in [1, horizon = {cfg.horizon}], got {cfg.action_steps}")
 
 
 # ---------------------------------------------------------------------------------------------- pieces
@@ -210,7 +221,8 @@ def load_data(cfg: TrainConfig, init=None) -> WindowDataset:
     demos = [demo for path in data_files(cfg) for demo in read_demos(path, OBS_KEYS)]
     return WindowDataset(demos, cfg.horizon, PlanLayout(), OBS_KEYS, use_labels=cfg.method == "detaug",
                          n_points=cfg.n_points if cfg.method == "demogen" else 0,
-                         normalizers=init.normalizers if init is not None else None, seed=cfg.seed)
+                         normalizers=init.normalizers if init is not None else None, seed=cfg.seed,
+                         zero_label_weight=cfg.zero_label_weight)
 
 
 def resume_state(cfg: TrainConfig) -> dict | None:
@@ -288,7 +300,8 @@ class Run:
                         layout=self.data.layout, obs_keys=OBS_KEYS, normalizers=self.data.normalizers,
                         labels=LabelSupport(*self.data.label_bank()),
                         n_points=cfg.n_points if cfg.method == "demogen" else 0,
-                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary})
+                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary,
+                                      "policy": {"action_steps": cfg.action_steps}})
         torch_save(out / TRAIN_STATE, {
             "config": dataclasses.asdict(cfg), "model": self.network.state_dict(),
             "optimizer": self.optimizer.state_dict(), "schedule": self.schedule.state_dict(),

@@ -15,7 +15,7 @@ import torch
 
 from detaug_gym import train as train_module
 from detaug_gym.models import CheckpointError, FlowPolicy, load_checkpoint
-from detaug_gym.models.dataset import PlanLayout, read_demos
+from detaug_gym.models.dataset import PlanLayout, WindowDataset, read_demos
 from detaug_gym.models.synthetic import write_synthetic_demos
 from detaug_gym.train import TrainConfig, build_network, parse_args, train
 
@@ -33,7 +33,7 @@ def detaug_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("detaug")
     data = write_synthetic_demos(root / "demos.hdf5", n_demos=4, length=24, label_dim=4)
     cfg = TrainConfig(method="detaug", data=str(data), out=str(root / "policy"), steps=700, label_dropout=0.1,
-                      **TINY)
+                      action_steps=3, **TINY)
     summary = train(cfg)
     return cfg, summary
 
@@ -100,6 +100,38 @@ def test_act_replans_every_n_steps_and_reset_clears_queue(detaug_run):
     assert len(calls) == 4 and np.array_equal(again, actions[0])  # queue cleared, same seed, same plan
     with pytest.raises(ValueError, match="action_steps"):
         FlowPolicy.load(cfg.out, action_steps=cfg.horizon + 1)
+
+
+def test_checkpoint_carries_its_replan_period(detaug_run, tmp_path):
+    cfg, _ = detaug_run
+    assert json.loads((Path(cfg.out) / "config.json").read_text())["policy"] == {"action_steps": 3}
+    assert FlowPolicy.load(cfg.out).action_steps == 3  # the trained-with default
+    assert FlowPolicy.load(cfg.out, action_steps=7).action_steps == 7  # a load overrides it
+    legacy = tmp_path / "legacy"
+    legacy.mkdir()
+    for name in ("model.pt", "normalization.json"):
+        (legacy / name).write_bytes((Path(cfg.out) / name).read_bytes())
+    config = json.loads((Path(cfg.out) / "config.json").read_text())
+    del config["policy"]
+    (legacy / "config.json").write_text(json.dumps(config))
+    assert FlowPolicy.load(legacy).action_steps == 10  # no policy section: the paper's N
+    with pytest.raises(SystemExit, match="action-steps"):
+        train(replace(cfg, out=str(tmp_path / "bad"), action_steps=cfg.horizon + 1))
+
+
+def test_zero_label_weight_shifts_batches_to_unaugmented_windows(detaug_run):
+    cfg, _ = detaug_run  # demos 0, 4, ... carry the zero label: one window in four
+    demos = read_demos(cfg.data)
+    counts = {}
+    for weight in (1.0, 3.0):
+        data = WindowDataset(demos, cfg.horizon, use_labels=True, zero_label_weight=weight)
+        batch = data.sample(4000, torch.Generator().manual_seed(0))
+        counts[weight] = float((batch.label == 0).all(dim=1).float().mean())
+    assert abs(counts[1.0] - 0.25) < 0.03 and abs(counts[3.0] - 0.5) < 0.03, counts  # 3 * 1/4 : 3/4
+    with pytest.raises(ValueError, match="labelled demos"):
+        WindowDataset(demos, cfg.horizon, zero_label_weight=2.0)
+    with pytest.raises(SystemExit, match="detaug only"):
+        train(replace(cfg, method="base", zero_label_weight=2.0))
 
 
 def test_resume_after_interruption_matches_an_uninterrupted_run(tmp_path, monkeypatch):

@@ -242,11 +242,14 @@ class WindowDataset:
         n_points: point-cloud size for ``demogen`` (0: no points). Clouds are resampled to this size once;
             demos without a cloud get a zero cloud and ``point_mask`` 0.
         normalizers: reuse these (fine-tuning) instead of fitting on the data.
+        zero_label_weight: sampling weight of the windows of zero-label demos (the unaugmented ones) relative
+            to the others (with ``use_labels``); 1 samples every window alike.
     """
 
     def __init__(self, demos: list[Demo], horizon: int, layout: PlanLayout | None = None,
                  obs_keys: tuple[str, ...] = OBS_KEYS, use_labels: bool = False, n_points: int = 0,
-                 normalizers: dict[str, Normalizer] | None = None, seed: int = 0) -> None:
+                 normalizers: dict[str, Normalizer] | None = None, seed: int = 0,
+                 zero_label_weight: float = 1.0) -> None:
         self.layout = layout or PlanLayout()
         self.horizon, self.obs_keys = horizon, tuple(obs_keys)
         rows, obs, starts, demo_of_start = [], [], [], []
@@ -271,6 +274,7 @@ class WindowDataset:
         self.start_rows = torch.from_numpy(np.concatenate(starts))
         self.demo_of_start = torch.from_numpy(np.concatenate(demo_of_start))
         self.labels = self._labels(demos) if use_labels else None
+        self.weights = self._weights(zero_label_weight)
         self.points, self.point_mask = self._points(demos, n_points, seed) if n_points else (None, None)
         self.num_demos = len(demos)
         self.demo_task = np.array([int(np.argmax(d.obs["task_id"][0])) if "task_id" in d.obs else 0
@@ -286,6 +290,17 @@ class WindowDataset:
             if d.label is not None:
                 labels[i, :d.label.size] = d.label
         return torch.from_numpy(labels)
+
+    def _weights(self, zero_label_weight: float) -> torch.Tensor | None:
+        """Per-window sampling weights (N,), or None for uniform sampling."""
+        if zero_label_weight <= 0.0:
+            raise ValueError(f"zero_label_weight must be > 0, got {zero_label_weight}")
+        if zero_label_weight == 1.0:
+            return None
+        if self.labels is None:
+            raise ValueError("zero_label_weight needs labelled demos (use_labels=True, the detaug method)")
+        zero = (self.labels == 0).all(dim=1)[self.demo_of_start]
+        return torch.where(zero, zero_label_weight, 1.0).double()
 
     @staticmethod
     def _points(demos: list[Demo], n_points: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -329,5 +344,7 @@ class WindowDataset:
         )
 
     def sample(self, batch_size: int, generator: torch.Generator | None = None) -> Batch:
-        """A batch of windows at uniformly random start positions."""
-        return self.window(torch.randint(len(self), (batch_size,), generator=generator))
+        """A batch of windows at random start positions: uniform, or by ``zero_label_weight``."""
+        if self.weights is None:
+            return self.window(torch.randint(len(self), (batch_size,), generator=generator))
+        return self.window(torch.multinomial(self.weights, batch_size, replacement=True, generator=generator))

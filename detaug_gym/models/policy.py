@@ -30,6 +30,7 @@ from detaug_gym.models.dataset import observation_vector
 from detaug_gym.models.flow import Guidance, Inpaint, remaining_steps, sample
 
 LABEL_MODES = ("auto", "zero", "null")
+DEFAULT_ACTION_STEPS = 10  # the paper's replan period N, for checkpoints whose config.json names none
 
 
 def zoo_dir(method: str, suite: str) -> Path:
@@ -43,7 +44,9 @@ class FlowPolicy:
 
     Args:
         checkpoint: a checkpoint folder or a loaded :class:`Checkpoint`.
-        action_steps: N, actions executed from each plan before replanning (1..horizon).
+        action_steps: N, actions executed from each plan before replanning (1..horizon); default the
+            checkpoint's own (``config.json`` ``policy.action_steps``, written by ``train --action-steps``),
+            else 10.
         flow_steps: Euler steps per plan.
         label_mode: label used by :meth:`act`: ``"zero"`` (the unaugmented demos' label), ``"null"`` (the
             null token: unconditional) or ``"auto"`` (zero for label models, nothing for ``base``).
@@ -51,12 +54,14 @@ class FlowPolicy:
         seed: default seed for :meth:`reset` without one.
     """
 
-    def __init__(self, checkpoint: Checkpoint | str | Path, action_steps: int = 10, flow_steps: int = 10,
+    def __init__(self, checkpoint: Checkpoint | str | Path, action_steps: int | None = None, flow_steps: int = 10,
                  label_mode: str = "auto", binarize_gripper: bool = True, seed: int | None = None) -> None:
         self.checkpoint = checkpoint if isinstance(checkpoint, Checkpoint) else load_checkpoint(checkpoint)
         self.network = self.checkpoint.network
         self.layout = self.checkpoint.layout
         self.horizon = self.network.config.dit.horizon
+        if action_steps is None:
+            action_steps = self.checkpoint.config.get("policy", {}).get("action_steps", DEFAULT_ACTION_STEPS)
         if not 1 <= action_steps <= self.horizon:
             raise ValueError(f"action_steps must lie in [1, {self.horizon}], got {action_steps}")
         if flow_steps < 1:
