@@ -6,9 +6,10 @@
 The observations are real: one episode of the (obstacle-blind) scripted expert in the env, recorded once,
 which passes close to the obstacle, so AEGIS's QP and CAPE's guidance have work to do. Every policy is
 then fed the same recorded observations (open loop) and ``act`` is timed step by step; the mean per env
-step includes the replans (base and DetAug every 10 steps, CAPE every 2). The network is the real
-``policies/base/spatial`` checkpoint when it exists, otherwise a default-size one trained for a few steps
-on synthetic demos (same cost per step, meaningless actions). One warm-up pass per policy is excluded
+step includes the replans (base and DetAug at their checkpoints' replan period, every 5 steps for the
+zoo's; CAPE every 2). The network is the real ``policies/base/spatial`` checkpoint when it exists,
+otherwise a default-size one trained for a few steps on synthetic demos (same cost per step, meaningless
+actions). One warm-up pass per policy is excluded
 (AEGIS's obstacle ellipsoid fit and the SDF bake are cached per obstacle shape after it); the first-step
 cost with an empty cache is printed separately. One torch thread, like the bench workers.
 """
