@@ -299,9 +299,8 @@ class Run:
         save_checkpoint(out, method=cfg.method, network=self.network, ema_state=self.ema.state,
                         layout=self.data.layout, obs_keys=OBS_KEYS, normalizers=self.data.normalizers,
                         labels=LabelSupport(*self.data.label_bank()),
-                        n_points=cfg.n_points if cfg.method == "demogen" else 0,
-                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary,
-                                      "policy": {"action_steps": cfg.action_steps}})
+                        n_points=cfg.n_points if cfg.method == "demogen" else 0, action_steps=cfg.action_steps,
+                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary})
         torch_save(out / TRAIN_STATE, {
             "config": dataclasses.asdict(cfg), "model": self.network.state_dict(),
             "optimizer": self.optimizer.state_dict(), "schedule": self.schedule.state_dict(),

@@ -104,11 +104,17 @@ class Checkpoint:
     n_points: int = 0
     config: dict = field(default_factory=dict)
 
+    @property
+    def action_steps(self) -> int | None:
+        """The replan period N saved with the checkpoint (``config.json`` ``policy.action_steps``), or None."""
+        return self.config.get("policy", {}).get("action_steps")
+
 
 def save_checkpoint(path: str | Path, *, method: str, network: FlowNetwork, ema_state: dict, layout: PlanLayout,
                     obs_keys: tuple[str, ...], normalizers: dict[str, Normalizer], labels: LabelSupport,
-                    n_points: int = 0, extra_config: dict | None = None) -> None:
-    """Write ``model.pt`` (the EMA weights ``ema_state``), ``config.json`` and ``normalization.json``."""
+                    n_points: int = 0, action_steps: int | None = None, extra_config: dict | None = None) -> None:
+    """Write ``model.pt`` (the EMA weights ``ema_state``), ``config.json`` and ``normalization.json``;
+    ``action_steps`` is the policy's default replan period (:attr:`Checkpoint.action_steps`)."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
     torch_save(path / WEIGHTS, ema_state)
@@ -117,7 +123,9 @@ def save_checkpoint(path: str | Path, *, method: str, network: FlowNetwork, ema_
     write_json(path / CONFIG, {
         "format": FORMAT_VERSION, "method": method, "network": network.config.to_dict(),
         "layout": layout.to_dict(), "obs_keys": list(obs_keys), "n_points": n_points,
-        "parameters": network.num_parameters(), **(extra_config or {}),
+        "parameters": network.num_parameters(),
+        **({"policy": {"action_steps": int(action_steps)}} if action_steps is not None else {}),
+        **(extra_config or {}),
     })
 
 

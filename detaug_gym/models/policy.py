@@ -61,7 +61,7 @@ class FlowPolicy:
         self.layout = self.checkpoint.layout
         self.horizon = self.network.config.dit.horizon
         if action_steps is None:
-            action_steps = self.checkpoint.config.get("policy", {}).get("action_steps", DEFAULT_ACTION_STEPS)
+            action_steps = self.checkpoint.action_steps or DEFAULT_ACTION_STEPS
         if not 1 <= action_steps <= self.horizon:
             raise ValueError(f"action_steps must lie in [1, {self.horizon}], got {action_steps}")
         if flow_steps < 1:
