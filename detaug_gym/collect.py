@@ -63,6 +63,8 @@ class CollectArgs:
     """Stationary std of the position disturbance added to the executed action (0: clean demos)."""
     noise_tau: float = 10.0
     """Correlation time of the disturbance, in env steps."""
+    tail_steps: int = 0
+    """Env steps recorded after the first success (the expert lets go and retreats); 0 ends the demo there."""
 
 
 @dataclass
@@ -113,11 +115,13 @@ def episode_seed(base: int, task: int, index: int) -> int:
 
 
 def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: str,
-                   noise: ActionNoise | None = None) -> tuple[Demo, bool]:
+                   noise: ActionNoise | None = None, tail_steps: int = 0) -> tuple[Demo, bool]:
     """Run one episode and record it; returns the demo and whether it succeeded.
 
     With ``noise`` the env gets the disturbed action and the demo records the policy's clean one as
-    ``actions`` (and the disturbed one as ``executed_actions``).
+    ``actions`` (and the disturbed one as ``executed_actions``). With ``tail_steps`` the recording goes on
+    that many steps past the first success (the env's step limit no longer applies then), and the episode
+    counts as a success only if the task is still solved at the end of the tail.
     """
     options = {"init_state": init_state}
     if _num_tasks(env) > 1:
@@ -130,6 +134,7 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
     keys = [k for k in obs if not k.startswith(OBSTACLE_PREFIX)]
     observations = {k: [] for k in keys}
     states, actions, executed, rewards, dones = [], [], [], [], []
+    solved_at: int | None = None
     done = False
     while not done:
         action = np.asarray(policy.act(obs), dtype=np.float32)
@@ -138,7 +143,9 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
             observations[k].append(obs[k])
         states.append(base.get_state())
         obs, reward, terminated, truncated, info = env.step(sent)
-        done = terminated or truncated
+        if solved_at is None and terminated:
+            solved_at = len(states)
+        done = truncated if solved_at is None else len(states) - solved_at >= tail_steps
         actions.append(action)
         executed.append(sent)
         rewards.append(reward)
@@ -152,6 +159,8 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
         "seed": int(seed),
         "controller": json.dumps(controller_settings(base)),
     }
+    if tail_steps:
+        attrs["tail_steps"] = int(tail_steps)
     if noise is not None:
         attrs["action_noise"] = json.dumps({"sigma": noise.sigma, "tau": noise.tau, "dims": "xyz"})
     actions_arr = np.asarray(actions, dtype=np.float32)
@@ -165,7 +174,7 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
         dones=np.asarray(dones, dtype=np.float32),
         executed_actions=None if noise is None else np.asarray(executed, dtype=np.float32),
     )
-    return demo, bool(info.get("is_success", False))
+    return demo, solved_at is not None and bool(info.get("is_success", False))
 
 
 def controller_settings(base) -> dict:
@@ -221,7 +230,8 @@ def collect(args: CollectArgs) -> list[TaskStats]:
                         st.resumed += 1
                         bar.update(1)
                         continue
-                    demo, ok = record_episode(env, policy, st.task, init_state, seed, args.env, noise)
+                    demo, ok = record_episode(env, policy, st.task, init_state, seed, args.env, noise,
+                                              args.tail_steps)
                     st.attempts += 1
                     if ok:
                         writer.append(demo)
@@ -261,16 +271,21 @@ def main(argv: list[str] | None = None) -> None:
                              "(DART-style recovery demos; default 0: clean)")
     parser.add_argument("--noise-tau", type=float, default=10.0,
                         help="correlation time of --action-noise in env steps (default 10)")
+    parser.add_argument("--tail-steps", type=int, default=0,
+                        help="steps recorded after the first success, so the demos show the expert letting go "
+                             "and retreating (default 0: a demo ends at its first success)")
     ns = parser.parse_args(argv)
     if ns.demos < 1:
         parser.error("--demos must be >= 1")
+    if ns.tail_steps < 0:
+        parser.error(f"--tail-steps must be >= 0, got {ns.tail_steps}")
     try:
         ActionNoise(ns.action_noise, ns.noise_tau)  # the one place that validates the noise options
     except ValueError as exc:
         parser.error(f"--action-noise / --noise-tau: {exc}")
     args = CollectArgs(env=ns.env, out=ns.out, task=ns.task, demos=ns.demos, policy=ns.policy, seed=ns.seed,
                        max_attempts=ns.max_attempts, controller=ns.controller,
-                       action_noise=ns.action_noise, noise_tau=ns.noise_tau)
+                       action_noise=ns.action_noise, noise_tau=ns.noise_tau, tail_steps=ns.tail_steps)
     start = time.perf_counter()
     stats = collect(args)
     print(format_table(stats))

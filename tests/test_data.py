@@ -138,6 +138,23 @@ def test_collect_resumes_without_redoing_demos(collected):
     assert demo.dones[-1] == 1.0  # kept demos end in success
 
 
+def test_tail_steps_record_the_expert_letting_go_after_the_first_success(collected, tmp_path):
+    from detaug_gym.collect import CollectArgs, collect, main
+
+    path, _, _ = collected
+    plain = load(path)[0]
+    tailed_path = tmp_path / "tail.hdf5"
+    collect(CollectArgs(env="SafeLibero-Spatial-Free-v0", out=str(tailed_path), task="0", demos=1, tail_steps=20))
+    tailed = load(tailed_path)[0]
+    assert len(tailed) == len(plain) + 20 and tailed.attrs["tail_steps"] == 20
+    np.testing.assert_array_equal(tailed.states[: len(plain)], plain.states)  # same episode up to the success
+    width = tailed.obs["gripper_qpos"][:, 0] - tailed.obs["gripper_qpos"][:, 1]
+    assert width[-1] > width[len(plain) - 1] + 0.02  # the fingers opened during the tail
+    assert tailed.actions[-1, -1] < 0 and tailed.dones[-1] == 1.0  # and the task is still solved
+    with pytest.raises(SystemExit):
+        main(["--env", "SafeLibero-Spatial-Free-v0", "--out", str(tmp_path / "x.hdf5"), "--tail-steps", "-1"])
+
+
 def test_replay_reproduces_recorded_states(collected):
     import gymnasium as gym
 
