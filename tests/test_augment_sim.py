@@ -15,7 +15,7 @@ from detaug_gym.augment.context import SourceContext, reset_to_demo
 from detaug_gym.augment.detaug import DetAugConfig, augment_source
 from detaug_gym.augment.ik import quat_xyzw_to_mat, rotation_error
 from detaug_gym.augment.plan import build_plan, rotations
-from detaug_gym.augment.replay import run_plan
+from detaug_gym.augment.replay import length_limit, run_plan, tail_steps
 from detaug_gym.collect import record_episode
 from detaug_gym.data import DatasetWriter, load
 from detaug_gym.policies import make_policy
@@ -67,6 +67,21 @@ def test_unbent_plan_replays_the_source_exactly(env, demo):
     assert rec.success
     np.testing.assert_array_equal(np.asarray(rec.actions, dtype=np.float32), demo.actions)
     np.testing.assert_array_equal(np.asarray(rec.states), demo.states)
+
+
+def test_a_source_with_a_tail_is_replayed_past_its_first_success(env):
+    demo, ok = record_episode(env, make_policy("scripted"), task=0, init_state=0, seed=0, env_id=ENV_ID,
+                              tail_steps=15)
+    assert ok and tail_steps(demo) == 15
+    assert length_limit(env, demo, None) == env.unwrapped.max_steps + 15
+    ctx = SourceContext.build(env, demo)
+    plan = build_plan(ctx.pos, ctx.quat, demo.gripper_command, [])
+    replay = DetAugConfig().replay
+    whole = run_plan(env, reset_to_demo(env, demo), plan, demo.actions, replay, tail=15)
+    assert whole.success
+    np.testing.assert_array_equal(np.asarray(whole.states), demo.states)
+    cut = run_plan(env, reset_to_demo(env, demo), plan, demo.actions, replay)
+    assert cut.success and len(cut.actions) == len(demo) - 15  # without the tail: stops at the first success
 
 
 def test_accepted_copies_keep_windows_and_carry_the_object_rigidly(env, demo, augmented):

@@ -51,7 +51,7 @@ from detaug_gym.augment.planner import (
     smooth,
     sphere_part,
 )
-from detaug_gym.augment.replay import ReplayConfig, run_plan
+from detaug_gym.augment.replay import ReplayConfig, length_limit, run_plan, tail_steps
 from detaug_gym.augment.segment import Transit
 
 __all__ = ["DemoGenConfig", "ObstacleShape", "augment_source", "label_size", "suite_of"]
@@ -432,7 +432,7 @@ def try_sample(src: DemoGenSource, rng: np.random.Generator, config: DemoGenConf
     obs = reset_to_demo(ctx.env, ctx.demo)
     held = {k: ctx.held[ctx.transit_index(s.sample.transit)] for k, s in enumerate(plan.spans)}
     held_body = {k: h.body for k, h in held.items() if h is not None}
-    rec = run_plan(ctx.env, obs, plan, ctx.demo.actions, config.replay, held_body)
+    rec = run_plan(ctx.env, obs, plan, ctx.demo.actions, config.replay, held_body, tail=tail_steps(ctx.demo))
     if not config.validate:
         return place, detours, plan, rec, None
     if not rec.success:
@@ -456,7 +456,7 @@ def augment_source(env, demo, copies: int, rng: np.random.Generator, config: Dem
     result = SourceResult()
     suite = suite_of(str(demo.attrs.get("env_id", "SafeLibero-Spatial-Free-v0")))
     src = DemoGenSource.build(env, demo, config, suite)
-    max_length = config.max_length or int(getattr(env.unwrapped, "max_steps", 10 ** 9))
+    max_length = length_limit(env, demo, config.max_length)
     if not src.ctx.segmentation.grasps or not any(src.ctx.bendable.values()):
         result.reasons["no_transit"] += 1
         result.seconds = time.perf_counter() - start

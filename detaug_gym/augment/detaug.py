@@ -24,7 +24,7 @@ from detaug_gym.augment.context import SourceContext, reset_to_demo
 from detaug_gym.augment.feasibility import FeasibilityConfig
 from detaug_gym.augment.ik import IKConfig
 from detaug_gym.augment.plan import ArcSample, Plan, Timing, build_plan
-from detaug_gym.augment.replay import Recording, ReplayConfig, run_plan
+from detaug_gym.augment.replay import Recording, ReplayConfig, length_limit, run_plan, tail_steps
 from detaug_gym.augment.segment import SegmentConfig
 
 # Most grasps of any task in a suite: Goal's drawer task (drawer handle, then bowl) and the Long suite's
@@ -52,7 +52,7 @@ class StageConfigs:
 
     Attributes:
         tries: samples drawn per requested copy before giving up on that copy.
-        max_length: longest augmented demo (steps); None: the env's episode limit.
+        max_length: longest augmented demo (steps); None: the env's episode limit plus the source's tail.
         validate: keep a replayed sample only if it succeeds and tracks its plan (samples are always
             replayed: the replay is what records the demo's states and observations).
     """
@@ -127,7 +127,7 @@ def try_sample(ctx: SourceContext, samples: list[ArcSample], config: DetAugConfi
     obs = reset_to_demo(ctx.env, ctx.demo)
     held = {k: ctx.held[ctx.transit_index(span.sample.transit)] for k, span in enumerate(plan.spans)}
     held_body = {k: h.body for k, h in held.items() if h is not None}
-    rec = run_plan(ctx.env, obs, plan, ctx.demo.actions, config.replay, held_body)
+    rec = run_plan(ctx.env, obs, plan, ctx.demo.actions, config.replay, held_body, tail=tail_steps(ctx.demo))
     if not config.validate:  # the replay still records the data; it just is not judged
         return plan, rec, None
     if not rec.success:
@@ -159,7 +159,7 @@ def augment_source(env, demo, copies: int, rng: np.random.Generator, config: Det
     start = time.perf_counter()
     result = SourceResult()
     ctx = SourceContext.build(env, demo, config.segment, config.ik, config.feasibility.penetration)
-    max_length = config.max_length or int(getattr(env.unwrapped, "max_steps", 10 ** 9))
+    max_length = length_limit(env, demo, config.max_length)
     skip = source_skip_reason(ctx, label_len)
     if skip is not None:
         result.reasons[skip] += 1

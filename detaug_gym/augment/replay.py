@@ -25,7 +25,8 @@ the arm is on the source's pose when the copied interaction window starts.
 
 The recorded demo is the replay itself (states, observations, actions), so the data are consistent with
 the env by construction. Replay stops at the first success (as the source collection does), or after the
-plan plus ``extra_steps`` hold steps.
+plan plus ``extra_steps`` hold steps. A source recorded with ``collect --tail-steps N`` (attribute
+``tail_steps``) is replayed N steps past its first success too, so the copies also show the expert letting go.
 """
 
 from __future__ import annotations
@@ -118,12 +119,25 @@ def distance_to_polyline(point: np.ndarray, poly: np.ndarray) -> float:
     return float(np.min(np.linalg.norm(a + t[:, None] * ab - point, axis=1)))
 
 
+def tail_steps(demo) -> int:
+    """Steps a source demo recorded past its first success (``collect --tail-steps``; 0 for older files)."""
+    return int(demo.attrs.get("tail_steps", 0))
+
+
+def length_limit(env, demo, max_length: int | None) -> int:
+    """Longest acceptable copy of ``demo``: ``max_length``, else the env's episode limit plus the demo's tail."""
+    if max_length:
+        return int(max_length)
+    return int(getattr(env.unwrapped, "max_steps", 10 ** 9)) + tail_steps(demo)
+
+
 def run_plan(env, obs: dict, plan: Plan, source_actions: np.ndarray, config: ReplayConfig,
-             held_body: dict[int, int] | None = None) -> Recording:
+             held_body: dict[int, int] | None = None, tail: int = 0) -> Recording:
     """Step ``env`` (already at the source's first frame, ``obs`` its observation) through ``plan``.
 
     ``held_body`` maps span index -> body id of the object carried in that span (carries only); its pose in
-    the grip-site frame is watched for drift.
+    the grip-site frame is watched for drift. ``tail``: steps recorded past the first success; the replay
+    then succeeds only if the task is still solved at the end.
     """
     base = env.unwrapped
     scene = base.scene
@@ -134,7 +148,8 @@ def run_plan(env, obs: dict, plan: Plan, source_actions: np.ndarray, config: Rep
     offsets: dict[int, np.ndarray] = {}
     first_arc = plan.spans[0].start if plan.spans else plan.n_steps
     info = {"is_success": False}
-    for i in range(plan.n_steps + config.extra_steps):
+    solved_at: int | None = None
+    for i in range(plan.n_steps + config.extra_steps + tail):
         rec.obs.append(obs)
         rec.states.append(base.get_state())
         if i >= plan.n_steps:
@@ -162,9 +177,11 @@ def run_plan(env, obs: dict, plan: Plan, source_actions: np.ndarray, config: Rep
             body = (held_body or {}).get(int(k))
             if body is not None:
                 rec.max_offset_drift = max(rec.max_offset_drift, _offset_drift(scene, body, offsets, int(k)))
-        if info["is_success"]:
+        if solved_at is None and info["is_success"]:
+            solved_at = i
+        if solved_at is not None and i - solved_at >= tail:
             break
-    rec.success = bool(info["is_success"])
+    rec.success = solved_at is not None and bool(info["is_success"])
     return rec
 
 
