@@ -120,8 +120,8 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
 
     With ``noise`` the env gets the disturbed action and the demo records the policy's clean one as
     ``actions`` (and the disturbed one as ``executed_actions``). With ``tail_steps`` the recording goes on
-    that many steps past the first success (the env's step limit no longer applies then), and the episode
-    counts as a success only if the task is still solved at the end of the tail.
+    that many steps past the first success (the env's step limit no longer applies then, and the tail is
+    not disturbed), and the episode counts as a success only if the task is still solved at the end of it.
     """
     options = {"init_state": init_state}
     if _num_tasks(env) > 1:
@@ -138,7 +138,7 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
     done = False
     while not done:
         action = np.asarray(policy.act(obs), dtype=np.float32)
-        sent = action if noise is None else noise(action)
+        sent = action if noise is None or solved_at is not None else noise(action)
         for k in keys:
             observations[k].append(obs[k])
         states.append(base.get_state())

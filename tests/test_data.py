@@ -194,10 +194,11 @@ def test_noisy_collection_records_clean_actions_and_replays_what_was_sent(tmp_pa
 
     path = tmp_path / "dart.hdf5"
     stats = collect(CollectArgs(env="SafeLibero-Spatial-Free-v0", out=str(path), task="0", demos=1, seed=500,
-                                action_noise=0.3, max_attempts=4))
+                                action_noise=0.3, max_attempts=4, tail_steps=10))
     assert stats[0].kept == 1
     demo = load(path)[0]
     assert demo.executed_actions.shape == demo.actions.shape
+    np.testing.assert_array_equal(demo.executed_actions[-10:], demo.actions[-10:])  # the tail is not disturbed
     pushed = demo.executed_actions[:, :3] - demo.actions[:, :3]
     assert np.abs(pushed).max() > 0.2 and np.all(demo.executed_actions[:, 3:] == demo.actions[:, 3:])
     # the expert steers against the push it felt on the previous step

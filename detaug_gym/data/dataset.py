@@ -306,7 +306,8 @@ def replay(env, demo: Demo, *, reset_seed: int | None = None) -> np.ndarray:
 
     The env is reset (to the demo's task and init state when its attributes name them, so the scene and
     any obstacle match), then the recorded first state is loaded and the actions are stepped. With a
-    deterministic env the result equals ``demo.states``. Stepping stops early if the episode ends.
+    deterministic env the result equals ``demo.states``. Stepping stops early if the episode ends, unless
+    the demo was recorded past its first success (``tail_steps``, ``collect --tail-steps``).
 
     Returns:
         ``(T, S)`` float64 states, ``T <= len(demo)``.
@@ -324,9 +325,10 @@ def replay(env, demo: Demo, *, reset_seed: int | None = None) -> np.ndarray:
     base.set_state(demo.states[0])
     out = []
     actions = demo.actions if demo.executed_actions is None else demo.executed_actions
+    through_end = int(demo.attrs.get("tail_steps", 0)) > 0
     for action in actions:
         out.append(base.get_state())
         _, _, terminated, truncated, _ = env.step(action)
-        if terminated or truncated:
+        if (terminated or truncated) and not through_end:
             break
     return np.asarray(out)
