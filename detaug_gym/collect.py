@@ -14,11 +14,13 @@ command plus a temporally correlated disturbance on the position part (an Ornste
 stationary std SIGMA in action units, 1 = 5 cm, and correlation time ``--noise-tau`` steps), while
 ``actions`` records the expert's clean command. The arm wanders off the expert's path and the demo shows
 the expert steering back, states a policy trained on clean demos never sees. What was sent is kept as
-``executed_actions`` (replay uses it). Give such a run its own ``--seed``, so that its demos never share a
-(task, init state, seed) with the clean file's, and pool the two files when training:
+``executed_actions`` (replay uses it). ``--noise-duty D`` pushes in bursts that cover a share D of the steps
+(:class:`ActionNoise`), so the expert also shows its undisturbed pace. Give such a run its own ``--seed``, so
+that its demos never share a (task, init state, seed) with the clean file's, and pool the two files when
+training:
 
     python -m detaug_gym.collect --env SafeLibero-Spatial-Free-v0 --task all --demos 50 --seed 500 \
-        --action-noise 0.3 --max-attempts 250 --out data/spatial_noisy.hdf5
+        --action-noise 0.3 --noise-duty 0.25 --max-attempts 250 --out data/spatial_noisy.hdf5
 """
 
 from __future__ import annotations
@@ -63,6 +65,10 @@ class CollectArgs:
     """Stationary std of the position disturbance added to the executed action (0: clean demos)."""
     noise_tau: float = 10.0
     """Correlation time of the disturbance, in env steps."""
+    noise_duty: float = 1.0
+    """Fraction of the steps the disturbance acts (below 1: in bursts, see :class:`ActionNoise`)."""
+    noise_burst: float = 15.0
+    """Mean length of a disturbance burst, in env steps (with ``noise_duty < 1``)."""
     tail_steps: int = 0
     """Env steps recorded after the first success (the expert lets go and retreats); 0 ends the demo there."""
 
@@ -74,28 +80,50 @@ class ActionNoise:
     ``n_{t+1} = rho n_t + sqrt(1 - rho^2) sigma eps`` with ``rho = exp(-1 / tau)``, so every step has std
     ``sigma`` and neighbouring steps push the same way: the arm drifts centimetres off the expert's path
     instead of jittering in place. The gripper and rotation parts are sent unchanged.
+
+    With ``duty < 1`` the disturbance acts in bursts: an on/off switch that turns off with probability
+    ``1 / burst`` per step and on again at the rate that keeps it on for a ``duty`` fraction of the steps.
+    Between bursts the expert steers back undisturbed, at its own pace; under a constant push it keeps
+    fighting it, and those demos teach a policy to dawdle (the grasp came ~50 steps later than in a clean
+    demo at ``sigma = 0.3``).
     """
 
     sigma: float
     tau: float = 10.0
+    duty: float = 1.0
+    burst: float = 15.0
 
     def __post_init__(self) -> None:
         if self.sigma < 0 or self.tau <= 0:
             raise ValueError(f"action noise needs sigma >= 0 and tau > 0, got sigma={self.sigma}, tau={self.tau}")
+        if not 0.0 < self.duty <= 1.0 or self.burst < 1.0:
+            raise ValueError(f"action noise needs 0 < duty <= 1 and burst >= 1 step, got duty={self.duty}, "
+                             f"burst={self.burst}")
         self._rng = np.random.default_rng()
         self._state = np.zeros(3)
+        self._on = True
 
     def reset(self, seed: int) -> None:
         self._rng = np.random.default_rng(seed)
         self._state = self.sigma * self._rng.standard_normal(self._state.shape)
+        self._on = self.duty == 1.0 or bool(self._rng.random() < self.duty)
+
+    @property
+    def active(self) -> bool:
+        """Whether the last call added a push (always, unless ``duty < 1``)."""
+        return self._on
 
     def __call__(self, action: np.ndarray) -> np.ndarray:
         """The action to execute: ``action`` (7,) with the disturbance added to its position part, clipped."""
         rho = np.exp(-1.0 / self.tau)
         self._state = rho * self._state + np.sqrt(1 - rho**2) * self.sigma * self._rng.standard_normal(
             self._state.shape)
+        if self.duty < 1.0:  # (no extra draws at duty 1: the always-on stream stays what it was)
+            switch = 1.0 / self.burst if self._on else self.duty / ((1.0 - self.duty) * self.burst)
+            self._on ^= bool(self._rng.random() < switch)
         out = np.array(action, dtype=np.float32)
-        out[:3] = np.clip(out[:3] + self._state, -1.0, 1.0)
+        if self._on:
+            out[:3] = np.clip(out[:3] + self._state, -1.0, 1.0)
         return out
 
 
@@ -162,7 +190,8 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
     if tail_steps:
         attrs["tail_steps"] = int(tail_steps)
     if noise is not None:
-        attrs["action_noise"] = json.dumps({"sigma": noise.sigma, "tau": noise.tau, "dims": "xyz"})
+        attrs["action_noise"] = json.dumps({"sigma": noise.sigma, "tau": noise.tau, "duty": noise.duty,
+                                            "burst": noise.burst, "dims": "xyz"})
     actions_arr = np.asarray(actions, dtype=np.float32)
     demo = Demo(
         actions=actions_arr,
@@ -211,7 +240,8 @@ def collect(args: CollectArgs) -> list[TaskStats]:
     env = gym.make(args.env, **env_kwargs)
     tasks = parse_tasks(args.task, _num_tasks(env))
     policy = make_policy(args.policy)
-    noise = ActionNoise(args.action_noise, args.noise_tau) if args.action_noise > 0 else None
+    noise = (ActionNoise(args.action_noise, args.noise_tau, args.noise_duty, args.noise_burst)
+             if args.action_noise > 0 else None)
     env_args = {"env_name": args.env, "env_version": getattr(detaug_gym, "__version__", "0"),
                 "type": "detaug_gym", "env_kwargs": env_kwargs}
     max_attempts = args.max_attempts or 2 * args.demos
@@ -271,6 +301,10 @@ def main(argv: list[str] | None = None) -> None:
                              "(DART-style recovery demos; default 0: clean)")
     parser.add_argument("--noise-tau", type=float, default=10.0,
                         help="correlation time of --action-noise in env steps (default 10)")
+    parser.add_argument("--noise-duty", type=float, default=1.0,
+                        help="fraction of steps --action-noise acts, in bursts (default 1: always)")
+    parser.add_argument("--noise-burst", type=float, default=15.0,
+                        help="mean burst length in env steps with --noise-duty below 1 (default 15)")
     parser.add_argument("--tail-steps", type=int, default=0,
                         help="steps recorded after the first success, so the demos show the expert letting go "
                              "and retreating (default 0: a demo ends at its first success)")
@@ -280,12 +314,13 @@ def main(argv: list[str] | None = None) -> None:
     if ns.tail_steps < 0:
         parser.error(f"--tail-steps must be >= 0, got {ns.tail_steps}")
     try:
-        ActionNoise(ns.action_noise, ns.noise_tau)  # the one place that validates the noise options
+        ActionNoise(ns.action_noise, ns.noise_tau, ns.noise_duty, ns.noise_burst)  # the one place that validates
     except ValueError as exc:
-        parser.error(f"--action-noise / --noise-tau: {exc}")
+        parser.error(f"--action-noise / --noise-tau / --noise-duty / --noise-burst: {exc}")
     args = CollectArgs(env=ns.env, out=ns.out, task=ns.task, demos=ns.demos, policy=ns.policy, seed=ns.seed,
                        max_attempts=ns.max_attempts, controller=ns.controller,
-                       action_noise=ns.action_noise, noise_tau=ns.noise_tau, tail_steps=ns.tail_steps)
+                       action_noise=ns.action_noise, noise_tau=ns.noise_tau, noise_duty=ns.noise_duty,
+                       noise_burst=ns.noise_burst, tail_steps=ns.tail_steps)
     start = time.perf_counter()
     stats = collect(args)
     print(format_table(stats))

@@ -186,6 +186,26 @@ def test_action_noise_is_correlated_with_the_requested_std():
         ActionNoise(sigma=0.3, tau=0.0)
 
 
+def test_action_noise_in_bursts_acts_the_requested_share_of_steps():
+    from detaug_gym.collect import ActionNoise
+
+    noise = ActionNoise(sigma=0.3, tau=10.0, duty=0.25, burst=15.0)
+    noise.reset(seed=3)
+    clean = np.zeros(7, np.float32)
+    pushed = np.array([np.any(noise(clean)[:3] != 0.0) for _ in range(40_000)])
+    assert abs(pushed.mean() - 0.25) < 0.03
+    starts = np.flatnonzero(np.diff(pushed.astype(int)) == 1)
+    ends = np.flatnonzero(np.diff(pushed.astype(int)) == -1)
+    lengths = ends[ends > starts[0]][: len(starts) - 1] - starts[: len(starts) - 1]
+    assert abs(lengths.mean() - 15.0) < 2.0  # bursts, not isolated steps
+    always = ActionNoise(sigma=0.3, tau=10.0)
+    always.reset(seed=3)
+    assert all(np.any(always(clean)[:3] != 0.0) for _ in range(100))
+    for bad in (dict(duty=0.0), dict(duty=1.5), dict(burst=0.5)):
+        with pytest.raises(ValueError, match="duty"):
+            ActionNoise(sigma=0.3, **bad)
+
+
 def test_noisy_collection_records_clean_actions_and_replays_what_was_sent(tmp_path):
     import gymnasium as gym
 
