@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import gymnasium as gym
 import h5py
 import mujoco
@@ -105,6 +107,21 @@ def test_accepted_copies_keep_windows_and_carry_the_object_rigidly(env, demo, au
         assert drift <= ctx.source_drift[1] + config.replay.offset_tolerance
 
 
+def test_copies_whose_grasp_moved_on_the_object_are_rejected(env, demo, augmented):
+    result, config = augmented
+    ctx = SourceContext.build(env, demo)
+    unbent = build_plan(ctx.pos, ctx.quat, demo.gripper_command, [])
+    rec = run_plan(env, reset_to_demo(env, demo), unbent, demo.actions, config.replay)
+    assert ctx.grasp_shift(unbent, rec) < 1e-9 and ctx.replay_reason(unbent, rec, config.replay) is None
+    for aug in result.demos:  # accepted copies hold the bowl where the source did when the carry starts
+        carry = next(s for s in aug.attrs["transits"] if s["kind"] == "carry")
+        local = _held_offsets(ctx, aug.states[carry["start"]:carry["start"] + 1])[0]
+        assert np.linalg.norm(local - ctx.held[1].offset_pos) <= config.replay.grasp_tolerance
+    strict = replace(config, tries=3, replay=replace(config.replay, grasp_tolerance=1e-6))
+    rejected = augment_source(env, demo, 1, np.random.default_rng(3), strict, label_len=4)
+    assert not rejected.demos and rejected.reasons["grasp_moved"] > 0, dict(rejected.reasons)
+
+
 def _frame_map(spans, n_source):
     """source frame -> augmented frame for the frames outside the bent transits."""
     mapping, shift = {}, 0
@@ -119,7 +136,8 @@ def _frame_map(spans, n_source):
     return mapping
 
 
-def _held_drift(env, ctx, states):
+def _held_offsets(ctx, states):
+    """(N, 3) the carried bowl's position in the grip-site frame, per simulator state."""
     model, data = ctx.scene.model, mujoco.MjData(ctx.scene.model)
     body = ctx.held[1].body
     local = []
@@ -128,7 +146,11 @@ def _held_drift(env, ctx, states):
         mujoco.mj_kinematics(model, data)
         rot = data.site_xmat[ctx.scene.eef_site].reshape(3, 3)
         local.append(rot.T @ (data.xpos[body] - data.site_xpos[ctx.scene.eef_site]))
-    local = np.array(local)
+    return np.array(local)
+
+
+def _held_drift(env, ctx, states):
+    local = _held_offsets(ctx, states)
     return float(np.linalg.norm(local - local[0], axis=1).max())
 
 

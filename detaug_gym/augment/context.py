@@ -24,6 +24,7 @@ from detaug_gym.augment.feasibility import (
 )
 from detaug_gym.augment.ik import ArmIK, IKConfig, mat_to_quat_xyzw
 from detaug_gym.augment.plan import Plan, rotations
+from detaug_gym.augment.replay import Recording, ReplayConfig
 from detaug_gym.augment.segment import Segmentation, SegmentConfig, Transit, segment_gripper
 
 
@@ -117,6 +118,38 @@ class SourceContext:
         if reason is not None:
             return reason
         return self._collision_reason(tr, result.q, targets_pos, targets_rot)
+
+    def replay_reason(self, plan: Plan, rec: Recording, config: ReplayConfig) -> str | None:
+        """Why a replayed sample is rejected (it failed, left its arcs, let the held object slip or grasped it
+        elsewhere than the source did), or None to keep it."""
+        if not rec.success:
+            return "replay_failed"
+        if rec.max_deviation > config.tolerance:
+            return "replay_tracking"
+        allowed_drift = max((self.source_drift.get(self.transit_index(s.sample.transit), 0.0) for s in plan.spans),
+                            default=0.0) + config.offset_tolerance
+        if rec.max_offset_drift > allowed_drift:
+            return "object_slipped"
+        if self.grasp_shift(plan, rec) > config.grasp_tolerance:
+            return "grasp_moved"
+        return None
+
+    def grasp_shift(self, plan: Plan, rec: Recording) -> float:
+        """Largest distance (m), over the carries, between the held object's position in the grip-site frame
+        at the carry's first frame in the replay and in the source (0 without carries)."""
+        model, data, site = self.scene.model, self.ik.data, self.scene.eef_site
+        shift = 0.0
+        for i, tr in enumerate(self.segmentation.transits):
+            held = self.held.get(i)
+            frames = np.flatnonzero(plan.source_frame == tr.start)
+            if held is None or not len(frames) or frames[0] >= len(rec.states):
+                continue
+            data.qpos[:] = np.asarray(rec.states[frames[0]])[1:1 + model.nq]
+            mujoco.mj_kinematics(model, data)
+            rot = data.site_xmat[site].reshape(3, 3)
+            local = rot.T @ (data.xpos[held.body] - data.site_xpos[site])
+            shift = max(shift, float(np.linalg.norm(local - held.offset_pos)))
+        return shift
 
     def _collision_reason(self, tr: Transit, q: np.ndarray, targets_pos: np.ndarray,
                           targets_rot: np.ndarray) -> str | None:

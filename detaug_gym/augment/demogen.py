@@ -435,14 +435,9 @@ def try_sample(src: DemoGenSource, rng: np.random.Generator, config: DemoGenConf
     rec = run_plan(ctx.env, obs, plan, ctx.demo.actions, config.replay, held_body, tail=tail_steps(ctx.demo))
     if not config.validate:
         return place, detours, plan, rec, None
-    if not rec.success:
-        return place, detours, plan, rec, "replay_failed"
-    if rec.max_deviation > config.replay.tolerance:
-        return place, detours, plan, rec, "replay_tracking"
-    allowed = max((ctx.source_drift.get(ctx.transit_index(s.sample.transit), 0.0) for s in plan.spans),
-                  default=0.0) + config.replay.offset_tolerance
-    if rec.max_offset_drift > allowed:
-        return place, detours, plan, rec, "object_slipped"
+    reason = ctx.replay_reason(plan, rec, config.replay)
+    if reason is not None:
+        return place, detours, plan, rec, reason
     carried = sorted({h.body for h in ctx.held.values() if h is not None})
     if replay_penetration(ctx, np.asarray(rec.states), place.mesh, carried) > config.replay_tolerance:
         return place, detours, plan, rec, "replay_collision"
@@ -514,6 +509,8 @@ def add_arguments(parser) -> None:
     g.add_argument("--max-length", type=int, default=None, help="longest demo in steps (default: env limit)")
     g.add_argument("--max-speed", type=float, default=0.012, help="planned peak eef speed, m/step (0.012)")
     g.add_argument("--tolerance", type=float, default=0.015, help="max eef distance from the detour on replay (m)")
+    g.add_argument("--grasp-tolerance", type=float, default=0.008,
+                   help="max shift (m) of a held object in the hand at the start of its carry, against the source")
     g.add_argument("--no-validate", action="store_true", help="keep samples whose replay fails (not recommended)")
 
 
@@ -524,4 +521,5 @@ def make_config(ns) -> DemoGenConfig:
     return DemoGenConfig(shapes=ns.shapes, tries=ns.tries, placement_tries=ns.placement_tries,
                          proxy_margin=ns.clearance, max_length=ns.max_length, validate=not ns.no_validate,
                          planner=PlannerConfig(max_iters=ns.rrt_iters),
-                         timing=Timing(max_speed=ns.max_speed), replay=ReplayConfig(tolerance=ns.tolerance))
+                         timing=Timing(max_speed=ns.max_speed),
+                         replay=ReplayConfig(tolerance=ns.tolerance, grasp_tolerance=ns.grasp_tolerance))

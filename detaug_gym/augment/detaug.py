@@ -130,15 +130,7 @@ def try_sample(ctx: SourceContext, samples: list[ArcSample], config: DetAugConfi
     rec = run_plan(ctx.env, obs, plan, ctx.demo.actions, config.replay, held_body, tail=tail_steps(ctx.demo))
     if not config.validate:  # the replay still records the data; it just is not judged
         return plan, rec, None
-    if not rec.success:
-        return plan, rec, "replay_failed"
-    if rec.max_deviation > config.replay.tolerance:
-        return plan, rec, "replay_tracking"
-    allowed_drift = max((ctx.source_drift.get(ctx.transit_index(s.sample.transit), 0.0) for s in plan.spans),
-                        default=0.0) + config.replay.offset_tolerance
-    if rec.max_offset_drift > allowed_drift:
-        return plan, rec, "object_slipped"
-    return plan, rec, None
+    return plan, rec, ctx.replay_reason(plan, rec, config.replay)
 
 
 def source_skip_reason(ctx: SourceContext, label_len: int) -> str | None:
@@ -236,6 +228,8 @@ def add_arguments(parser) -> None:
     g.add_argument("--timing", choices=("trapezoid", "min_jerk", "source"), default="trapezoid",
                    help="progress profile along an arc (default trapezoid)")
     g.add_argument("--tolerance", type=float, default=0.015, help="max eef distance from the arc on replay (m)")
+    g.add_argument("--grasp-tolerance", type=float, default=0.008,
+                   help="max shift (m) of a held object in the hand at the start of its carry, against the source")
     g.add_argument("--no-validate", action="store_true",
                    help="keep samples whose replay fails or leaves the arc (not recommended)")
 
@@ -256,5 +250,5 @@ def make_config(ns) -> DetAugConfig:
         validate=not ns.no_validate,
         segment=SegmentConfig(margin_s=ns.margin, window_s=ns.window),
         timing=Timing(profile=ns.timing, max_speed=ns.max_speed),
-        replay=ReplayConfig(tolerance=ns.tolerance),
+        replay=ReplayConfig(tolerance=ns.tolerance, grasp_tolerance=ns.grasp_tolerance),
     )

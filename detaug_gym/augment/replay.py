@@ -51,6 +51,10 @@ class ReplayConfig:
         tolerance: largest eef distance (m) from the planned arc during a transit.
         offset_tolerance: drift (m) of the held object in the grip-site frame during a carry allowed on top
             of the drift the source's own carry shows.
+        grasp_tolerance: largest distance (m) between where a held object sits in the grip-site frame when its
+            carry starts and where it sat in the source: the copied grasp must still take the object the way
+            the source's did (a bent approach can nudge a bowl propped on the ramekin by 1-3 cm, and the copied
+            grasp then closes elsewhere on it; such copies still succeed, but teach a worse grasp).
         extra_steps: hold steps allowed after the plan for the success check to fire.
         raw_prefix: send the source's raw actions until the first arc starts (bit-identical prefix).
     """
@@ -58,6 +62,7 @@ class ReplayConfig:
     lead: float = 1.0
     tolerance: float = 0.015
     offset_tolerance: float = 0.01
+    grasp_tolerance: float = 0.008
     extra_steps: int = 10
     raw_prefix: bool = True
 
