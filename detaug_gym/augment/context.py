@@ -19,6 +19,7 @@ from detaug_gym.augment.feasibility import (
     HeldObject,
     articulated_motion,
     find_held_object,
+    grip_frame_position,
     held_offset_drift,
     path_kinematics_reason,
 )
@@ -146,9 +147,7 @@ class SourceContext:
                 continue
             data.qpos[:] = np.asarray(rec.states[frames[0]])[1:1 + model.nq]
             mujoco.mj_kinematics(model, data)
-            rot = data.site_xmat[site].reshape(3, 3)
-            local = rot.T @ (data.xpos[held.body] - data.site_xpos[site])
-            shift = max(shift, float(np.linalg.norm(local - held.offset_pos)))
+            shift = max(shift, float(np.linalg.norm(grip_frame_position(data, site, held.body) - held.offset_pos)))
         return shift
 
     def _collision_reason(self, tr: Transit, q: np.ndarray, targets_pos: np.ndarray,

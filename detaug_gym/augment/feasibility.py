@@ -90,9 +90,13 @@ def find_held_object(model: mujoco.MjModel, data: mujoco.MjData, qpos_path: np.n
     body, adr = best
     data.qpos[:] = qpos_path[0]
     mujoco.mj_kinematics(model, data)
-    site_pos, site_rot = data.site_xpos[site].copy(), data.site_xmat[site].reshape(3, 3).copy()
-    body_rot = data.xmat[body].reshape(3, 3)
-    return HeldObject(body, adr, site_rot.T @ (data.xpos[body] - site_pos), site_rot.T @ body_rot)
+    site_rot = data.site_xmat[site].reshape(3, 3)
+    return HeldObject(body, adr, grip_frame_position(data, site, body), site_rot.T @ data.xmat[body].reshape(3, 3))
+
+
+def grip_frame_position(data: mujoco.MjData, site: int, body: int) -> np.ndarray:
+    """(3,) the body's origin in the grip-site frame, from ``data``'s current kinematics."""
+    return data.site_xmat[site].reshape(3, 3).T @ (data.xpos[body] - data.site_xpos[site])
 
 
 def held_offset_drift(model: mujoco.MjModel, data: mujoco.MjData, qpos_path: np.ndarray, site: int,
@@ -102,8 +106,7 @@ def held_offset_drift(model: mujoco.MjModel, data: mujoco.MjData, qpos_path: np.
     for t, qpos in enumerate(qpos_path):
         data.qpos[:] = qpos
         mujoco.mj_kinematics(model, data)
-        rot = data.site_xmat[site].reshape(3, 3)
-        local[t] = rot.T @ (data.xpos[held.body] - data.site_xpos[site])
+        local[t] = grip_frame_position(data, site, held.body)
     return float(np.linalg.norm(local - local[0], axis=1).max())
 
 

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from detaug_gym.augment.feasibility import grip_frame_position
 from detaug_gym.augment.ik import quat_xyzw_to_mat, rotation_error
 from detaug_gym.augment.plan import Plan
 
@@ -192,9 +193,7 @@ def run_plan(env, obs: dict, plan: Plan, source_actions: np.ndarray, config: Rep
 
 def _offset_drift(scene, body: int, offsets: dict[int, np.ndarray], key: int) -> float:
     """Distance the body moved in the grip-site frame since the span's first step."""
-    d = scene.data
-    rot = d.site_xmat[scene.eef_site].reshape(3, 3)
-    local = rot.T @ (d.xpos[body] - d.site_xpos[scene.eef_site])
+    local = grip_frame_position(scene.data, scene.eef_site, body)
     if key not in offsets:
         offsets[key] = local
     return float(np.linalg.norm(local - offsets[key]))
