@@ -19,7 +19,6 @@ import gymnasium as gym
 import numpy as np
 
 import detaug_gym  # noqa: F401
-from detaug_gym.envs import safe_libero_id
 from detaug_gym.envs.placement import L1_GAP, L2_LATERAL, TRANSIT_HEIGHT, distance_to_segment, footprint_gap
 from detaug_gym.envs.suites import SUITES
 
@@ -27,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def measure(suite: str, level: str, seeds: int) -> list[dict]:
-    env = gym.make(safe_libero_id(suite, level))
+    env = gym.make(SUITES[suite].env_id(level))
     rows = []
     for task in range(len(env.unwrapped.tasks)):
         for seed in range(seeds):
@@ -92,7 +91,7 @@ def card(suite: str, stats: dict[str, list[dict]], seeds: int) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--suites", nargs="+", default=list(SUITES))
+    parser.add_argument("--suites", nargs="+", default=[s for s in SUITES if SUITES[s].shape_source_level])
     parser.add_argument("--seeds", type=int, default=10)
     args = parser.parse_args()
     for suite in args.suites:

@@ -7,6 +7,8 @@ checks, the control loop (fast or stock OSC_POSE), SafeLIBERO's collision rule a
 
 from __future__ import annotations
 
+import numbers
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -23,6 +25,7 @@ from detaug_gym.envs.obstacles import (
 )
 from detaug_gym.envs.placement import Placement, PlacementProblem, place_obstacle
 from detaug_gym.envs.scene import SETTLE_ACTION, Scene
+from detaug_gym.envs.suites import SuiteSpec, TaskSpec
 
 ACTION_DIM = 7
 SETTLE_STEPS = 10
@@ -53,19 +56,30 @@ class ObstacleManipulationEnv(gym.Env):
     Info (every step): ``is_success``, ``collision`` (latched), ``robot_obstacle_contact``,
         ``obstacle_displacement``, ``min_clearance`` (m, robot collision geometry to the obstacle; inf
         without one), ``task``, ``init_state``, ``obstacle``.
+    Step limit: gymnasium's ``TimeLimit`` (``gym.make(id, max_episode_steps=N)``, default the suite's); an
+        env built directly truncates itself only when given ``max_episode_steps``.
+
+    Data tools use the public surface, never the private members: :meth:`observe`, :meth:`restore`
+    (a recorded episode's first frame), :meth:`placement_problem`, :meth:`scene_for`, :meth:`get_state`
+    and :meth:`set_state`.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
     obstacle_types: tuple[str, ...] = OBSTACLE_TYPES
 
-    def __init__(self, *, num_tasks: int, object_slots: int, max_steps: int, level: str,
+    def __init__(self, *, suite: SuiteSpec, level: str, max_steps: int | None = None,
                  obstacle: str | list[str] | None = None, controller: str = "fast",
                  render_mode: str | None = None) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"unknown render_mode {render_mode!r}; valid: None, 'rgb_array'")
+        if max_steps is not None and not (_is_int(max_steps) and max_steps >= 1):
+            raise ValueError(f"max_episode_steps must be a positive integer, got {max_steps!r}")
         self.render_mode = render_mode
-        self.level = level
-        self.max_steps = int(max_steps)
+        self.suite = suite
+        self.level = suite.check_level(level)
+        self.tasks: tuple[TaskSpec, ...] = suite.tasks_for(self.level)
+        self.max_steps = None if max_steps is None else int(max_steps)
+        num_tasks, object_slots = len(self.tasks), suite.object_slots
         if controller not in CONTROLLERS:
             raise ValueError(f"unknown controller {controller!r}; valid controllers: {', '.join(CONTROLLERS)}")
         self.controller = controller
@@ -94,6 +108,13 @@ class ObstacleManipulationEnv(gym.Env):
         self._renderer = None
         self._steps = 0
 
+    @property
+    def task_spec(self) -> TaskSpec:
+        """The task of the current episode."""
+        if self.episode is None:
+            raise RuntimeError("call reset() first")
+        return self.tasks[self.episode.task]
+
     # ------------------------------------------------------------------ to implement
     def _build_scene(self, task: int) -> Scene:
         raise NotImplementedError
@@ -114,7 +135,7 @@ class ObstacleManipulationEnv(gym.Env):
         options = dict(options or {})
         rng = self.np_random
         task, init_state = self._sample_episode(rng, options)
-        scene = self._scene(task)
+        scene = self.scene_for(task)
         self.scene = scene
         scene.reset_dynamics()
         self._load_init_state(scene, task, init_state, rng)
@@ -133,7 +154,7 @@ class ObstacleManipulationEnv(gym.Env):
         self._steps = 0
         self._obstacle_ref = self._obstacle_position()
         self._collided = False
-        return self._observation(), self._info(contact=False)
+        return self.observe(), self._info(contact=False)
 
     def step(self, action):
         if self.scene is None:
@@ -148,8 +169,8 @@ class ObstacleManipulationEnv(gym.Env):
         contact = self._robot_obstacle_contact()
         info = self._info(contact=contact)
         terminated = bool(info["is_success"])
-        truncated = self._steps >= self.max_steps and not terminated
-        return self._observation(), float(terminated), terminated, truncated, info
+        truncated = self.max_steps is not None and self._steps >= self.max_steps and not terminated
+        return self.observe(), float(terminated), terminated, truncated, info
 
     def render(self):
         if self.render_mode != "rgb_array" or self.scene is None:
@@ -171,7 +192,48 @@ class ObstacleManipulationEnv(gym.Env):
         self._steppers.clear()
         self.scene = None
 
-    # ------------------------------------------------------------------ state access for data tools
+    # ------------------------------------------------------------------ public surface for data tools
+    def observe(self) -> dict[str, np.ndarray]:
+        """The observation of the current state (what :meth:`step` would return now)."""
+        if self.scene is None:
+            raise RuntimeError("call reset() before observe()")
+        return self._observation()
+
+    def restore(self, attrs: Mapping, state: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], dict]:
+        """Put the env on a recorded episode's frame: reset to the episode named by ``attrs`` (a demo's
+        ``task``, ``init_state`` and ``seed``; missing ones are drawn as in :meth:`reset`), then load the
+        flattened ``state`` when given. The controller's internal state (goal orientation, gripper ramp) is
+        the one a fresh episode starts with, as when the demo was recorded.
+
+        Returns:
+            ``(obs, info)`` of the restored frame.
+        """
+        options = {}
+        if "task" in attrs and len(self.tasks) > 1:
+            options["task"] = int(attrs["task"])
+        if int(attrs.get("init_state", -1)) >= 0:
+            options["init_state"] = int(attrs["init_state"])
+        seed = attrs.get("seed")
+        _, info = self.reset(seed=None if seed is None else int(seed), options=options)
+        if state is not None:
+            self.set_state(state)
+        return self.observe(), info
+
+    def placement_problem(self, rng: np.random.Generator | None = None) -> PlacementProblem:
+        """Where an obstacle may go in the current scene (pick and place footprints, other objects, the
+        sampling box); ``rng`` picks the pick-place step of multi-step tasks (default: the first)."""
+        if self.scene is None:
+            raise RuntimeError("call reset() before placement_problem()")
+        return self._placement_problem(self.scene, rng if rng is not None else np.random.default_rng(0))
+
+    def scene_for(self, task: int) -> Scene:
+        """The compiled scene of ``task`` (index into :attr:`tasks`), built on first use and cached."""
+        if task not in self._scenes:
+            scene = self._build_scene(task)
+            self._scenes[task] = scene
+            self._steppers[task] = make_stepper(self.controller, scene)
+        return self._scenes[task]
+
     def get_state(self) -> np.ndarray:
         """Flattened simulator state ``[time, qpos, qvel]`` of the current scene."""
         return self.scene.get_state()
@@ -182,16 +244,12 @@ class ObstacleManipulationEnv(gym.Env):
         mujoco.mj_forward(self.scene.model, self.scene.data)
 
     # ------------------------------------------------------------------ internals
-    def _scene(self, task: int) -> Scene:
-        if task not in self._scenes:
-            scene = self._build_scene(task)
-            self._scenes[task] = scene
-            self._steppers[task] = make_stepper(self.controller, scene)
-        return self._scenes[task]
-
     def _obstacle_choices(self, obstacle) -> tuple[str, ...]:
         if obstacle is None:
             return self.obstacle_types
+        if self.level == "Free":
+            raise ValueError(f"obstacle={obstacle!r} has no effect at the Free level (no obstacle is placed); "
+                             "use an L1 or L2 id")
         chosen = (obstacle,) if isinstance(obstacle, str) else tuple(obstacle)
         if not chosen:
             raise ValueError(f"obstacle must name at least one type; valid types: {', '.join(self.obstacle_types)}")
@@ -287,6 +345,10 @@ class ObstacleManipulationEnv(gym.Env):
             obs["obstacle_size"] = handle.half_extents
             obs["obstacle_mask"] = np.ones(1)
         return {k: np.asarray(v, dtype=np.float32) for k, v in obs.items()}
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
 def _box(shape, low: float = -np.inf, high: float = np.inf) -> spaces.Box:

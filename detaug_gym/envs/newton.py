@@ -20,9 +20,8 @@ import numpy as np
 from detaug_gym.envs.base import ObstacleManipulationEnv
 from detaug_gym.envs.placement import Footprint, PlacementProblem
 from detaug_gym.envs.scene import PickPlace, Scene, quiet
+from detaug_gym.envs.suites import SUITES
 
-NUM_INIT_STATES = 50
-MAX_STEPS = 200
 CUBE_HALF = 0.02
 CYLINDER_RADIUS = 0.035
 CYLINDER_HALF_HEIGHT = 0.09
@@ -45,7 +44,7 @@ class NewtonPickPlaceEnv(ObstacleManipulationEnv):
         cylinder: add the cylinder obstacle (the ``-Cylinder-`` id).
         init_state: fix the layout index (0-49); default: drawn from the reset seed.
         controller: ``"fast"`` or ``"stock"``.
-        max_episode_steps: override the 200-step limit.
+        max_episode_steps: truncate after this many steps (``gym.make`` applies the suite's 200 instead).
     """
 
     obstacle_types = ("cylinder",)
@@ -53,21 +52,19 @@ class NewtonPickPlaceEnv(ObstacleManipulationEnv):
     def __init__(self, cylinder: bool = False, init_state: int | None = None, obstacle: str | None = None,
                  controller: str | None = None, max_episode_steps: int | None = None,
                  render_mode: str | None = None) -> None:
-        if init_state is not None and not (isinstance(init_state, (int, np.integer))
-                                           and 0 <= init_state < NUM_INIT_STATES):
-            raise ValueError(f"init_state must be an index in [0, {NUM_INIT_STATES}), got {init_state!r}")
-        self.cylinder = cylinder
-        self.fixed_init_state = init_state
+        suite = SUITES["newton"]
+        self.cylinder = bool(cylinder)
+        self.fixed_init_state = None if init_state is None else suite.check_init_state(init_state)
         kwargs = {} if controller is None else {"controller": controller}
-        super().__init__(num_tasks=1, object_slots=2, max_steps=max_episode_steps or MAX_STEPS,
-                         level="L2" if cylinder else "Free", obstacle=obstacle, render_mode=render_mode,
-                         **kwargs)
+        super().__init__(suite=suite, level="L2" if cylinder else "Free", max_steps=max_episode_steps,
+                         obstacle=obstacle, render_mode=render_mode, **kwargs)
 
     def _sample_episode(self, rng: np.random.Generator, options: dict) -> tuple[int, int]:
-        if options.get("task", 0) != 0:
-            raise ValueError("Newton-PickPlace has a single task: 0")
+        task = self.suite.resolve_task(self.level, options.get("task", 0))
         init_state = options.get("init_state", self.fixed_init_state)
-        return 0, int(rng.integers(NUM_INIT_STATES)) if init_state is None else int(init_state)
+        init_state = (int(rng.integers(self.suite.num_init_states)) if init_state is None
+                      else self.suite.check_init_state(init_state))
+        return task, init_state
 
     def _build_scene(self, task: int) -> Scene:
         return build_newton_scene(self.cylinder)

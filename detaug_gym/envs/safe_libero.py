@@ -15,9 +15,8 @@ from detaug_gym.envs.base import ObstacleManipulationEnv
 from detaug_gym.envs.obstacles import OBSTACLE_TYPES
 from detaug_gym.envs.placement import PlacementProblem
 from detaug_gym.envs.scene import PickPlace, Scene, quiet
-from detaug_gym.envs.suites import TaskSpec, check_level, get_suite, resolve_task
+from detaug_gym.envs.suites import SUITES, TaskSpec, get_suite
 
-NUM_INIT_STATES = 50
 FIXTURE_SEED = 0  # global np.random seed for robosuite's one-off fixture draw at scene build
 
 
@@ -28,37 +27,34 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         suite: ``"spatial" | "object" | "goal" | "long"`` (case-insensitive).
         level: ``"L1" | "L2" | "Free"``.
         task: fix the task (index, key or language); default: drawn from the reset seed.
-        obstacle: restrict the obstacle type(s); default: all six, drawn from the seed.
+        obstacle: restrict the obstacle type(s); default: all six, drawn from the seed (L1/L2 only).
         init_state: fix the index into LIBERO's 50 official init states; default: drawn from the seed.
         controller: ``"fast"`` or ``"stock"`` (robosuite's own controller).
-        max_episode_steps: override the suite's step limit.
+        max_episode_steps: truncate after this many steps (``gym.make`` applies the suite's limit instead).
     """
 
     def __init__(self, suite: str, level: str, task: int | str | None = None,
                  obstacle: str | list[str] | None = None, init_state: int | None = None,
                  controller: str | None = None, max_episode_steps: int | None = None,
                  render_mode: str | None = None) -> None:
-        self.suite = get_suite(suite)
-        check_level(level)
-        self.tasks: tuple[TaskSpec, ...] = self.suite.tasks_for(level)
-        self.fixed_task = None if task is None else resolve_task(self.suite, level, task)
-        self.fixed_init_state = None if init_state is None else _check_init_state(init_state)
+        valid = [name for name, s in SUITES.items() if s.entry_point.endswith(":SafeLiberoEnv")]
+        spec = get_suite(suite)
+        if spec.name not in valid:
+            raise ValueError(f"unknown suite {suite!r}; valid suites: {', '.join(valid)}")
+        level = spec.check_level(level)
+        self.fixed_task = None if task is None else spec.resolve_task(level, task)
+        self.fixed_init_state = None if init_state is None else spec.check_init_state(init_state)
         self._init_states: dict[int, np.ndarray] = {}
         kwargs = {} if controller is None else {"controller": controller}
-        super().__init__(num_tasks=len(self.tasks), object_slots=self.suite.object_slots,
-                         max_steps=max_episode_steps or self.suite.max_steps, level=level,
-                         obstacle=obstacle, render_mode=render_mode, **kwargs)
-
-    @property
-    def task_spec(self) -> TaskSpec:
-        """The task of the current episode."""
-        return self.tasks[self.episode.task]
+        super().__init__(suite=spec, level=level, max_steps=max_episode_steps, obstacle=obstacle,
+                         render_mode=render_mode, **kwargs)
 
     def _sample_episode(self, rng: np.random.Generator, options: dict) -> tuple[int, int]:
         task = options.get("task", self.fixed_task)
-        task = int(rng.integers(len(self.tasks))) if task is None else resolve_task(self.suite, self.level, task)
+        task = int(rng.integers(len(self.tasks))) if task is None else self.suite.resolve_task(self.level, task)
         init_state = options.get("init_state", self.fixed_init_state)
-        init_state = int(rng.integers(NUM_INIT_STATES)) if init_state is None else _check_init_state(init_state)
+        init_state = (int(rng.integers(self.suite.num_init_states)) if init_state is None
+                      else self.suite.check_init_state(init_state))
         return task, init_state
 
     def _build_scene(self, task: int) -> Scene:
@@ -94,12 +90,6 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
             if target.startswith(owner + "_"):
                 return scene.footprint(owner)
         return scene.footprint(target)
-
-
-def _check_init_state(index: int) -> int:
-    if not (isinstance(index, (int, np.integer)) and 0 <= int(index) < NUM_INIT_STATES):
-        raise ValueError(f"init_state must be an index in [0, {NUM_INIT_STATES}), got {index!r}")
-    return int(index)
 
 
 def _scene_object_names(scene: Scene) -> list[str]:

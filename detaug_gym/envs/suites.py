@@ -1,25 +1,37 @@
-"""The four SafeLIBERO suites: which LIBERO tasks each level uses, step limits, observation sizes.
+"""The suite registry: every question about a suite (env ids, levels, tasks, step limits, init states) has
+its answer here, and no other module spells an env id.
 
 SafeLIBERO (Hu et al. 2025) evaluates 4 tasks per suite at two obstacle levels. The Goal suite uses a
 different fourth task per level ("open the top drawer and put the bowl inside" at Level 1, "put the cream
-cheese in the bowl" at Level 2); its Free variant offers both, so it has five tasks.
+cheese in the bowl" at Level 2); its Free variant offers both, so it has five tasks. The Newton-style
+pick-and-place (the paper's fine-tuning task) is a suite too: one task, a Free level and one obstacle
+level (L2, the cylinder on the path).
+
+    >>> from detaug_gym.envs.suites import SUITES, suite_of_env
+    >>> SUITES["spatial"].env_id("L2")
+    'SafeLibero-Spatial-L2-v0'
+    >>> suite_of_env("Newton-PickPlace-Cylinder-v0")
+    (SuiteSpec(name='newton', ...), 'L2')
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 LEVELS = ("L1", "L2", "Free")
+LEVEL_ALIASES = {"1": "L1", "l1": "L1", "2": "L2", "l2": "L2", "free": "Free"}
+NUM_INIT_STATES = 50  # LIBERO's official init states per task (and Newton's fixed layouts)
+ENV_PREFIX = "detaug_gym:"  # gymnasium's "module:EnvId" form
 
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """One LIBERO task as used by SafeLIBERO.
+    """One task of a suite.
 
     Attributes:
-        key: short name used in ids and file names (``"bowl_on_stove"``).
-        libero_suite: LIBERO benchmark name (``"libero_spatial"``).
-        libero_index: index of the task inside that benchmark (task order 0).
+        key: short name used in ids, file names and the scripted expert's recipes (``"bowl_on_stove"``).
+        libero_suite: LIBERO benchmark name (``"libero_spatial"``; empty for Newton).
+        libero_index: index of the task inside that benchmark (task order 0; -1 for Newton).
         language: the instruction, as a person would type it.
     """
 
@@ -31,14 +43,20 @@ class TaskSpec:
 
 @dataclass(frozen=True)
 class SuiteSpec:
-    """A SafeLIBERO suite.
+    """A suite: what its envs are and how episodes are drawn.
 
     Attributes:
-        name: ``"spatial" | "object" | "goal" | "long"``.
-        max_steps: control steps (20 Hz) before truncation, as used with LIBERO.
+        name: ``"spatial" | "object" | "goal" | "long" | "newton"``.
+        max_steps: control steps (20 Hz) before truncation.
         tasks: every task of the suite (the Free level offers all of them).
-        level_tasks: indices into ``tasks`` for Level 1 and Level 2, in SafeLIBERO's order.
+        level_tasks: indices into ``tasks`` for each obstacle level, in SafeLIBERO's order.
         object_slots: rows of the ``object_poses`` observation (task-relevant objects, zero padded).
+        ids: env id per level (the levels this suite has).
+        entry_point: gymnasium entry point of its env class; ``kwargs`` per level are given by ``env_kwargs``.
+        max_grasps: most grasps of any task (DetAug's label has 4 entries per grasp).
+        num_init_states: init states per task (LIBERO's 50 official ones; Newton's 50 fixed layouts).
+        shape_source_level: level whose scene holds SafeLIBERO's obstacle set (DemoGen takes its meshes
+            from there), or None when the suite has none.
     """
 
     name: str
@@ -46,13 +64,90 @@ class SuiteSpec:
     tasks: tuple[TaskSpec, ...]
     level_tasks: dict[str, tuple[int, ...]]
     object_slots: int
+    ids: dict[str, str]
+    entry_point: str
+    max_grasps: int = 1
+    num_init_states: int = NUM_INIT_STATES
+    shape_source_level: str | None = "L1"
+    level_kwargs: dict[str, dict] = field(default_factory=dict)
+
+    @property
+    def levels(self) -> tuple[str, ...]:
+        """The levels this suite has, in :data:`LEVELS` order."""
+        return tuple(level for level in LEVELS if level in self.ids)
+
+    def env_id(self, level: str) -> str:
+        """The registered env id of ``level`` (``"L1"``, ``"1"``, ``"free"``, ...)."""
+        level = self.check_level(level)
+        return self.ids[level]
+
+    def env_kwargs(self, level: str) -> dict:
+        """Constructor kwargs the registration passes for ``level``."""
+        return dict(self.level_kwargs.get(self.check_level(level), {}))
+
+    def check_level(self, level: str) -> str:
+        """The canonical level name; ``ValueError`` names the levels this suite has."""
+        canonical = parse_level(level)
+        if canonical not in self.ids:
+            raise ValueError(f"suite {self.name!r} has no level {level!r}; its levels: {', '.join(self.levels)}")
+        return canonical
 
     def tasks_for(self, level: str) -> tuple[TaskSpec, ...]:
-        """The tasks offered at ``level`` (``"L1"``, ``"L2"`` or ``"Free"``)."""
-        check_level(level)
-        if level == "Free":
+        """The tasks offered at ``level``."""
+        level = self.check_level(level)
+        if level == "Free" or level not in self.level_tasks:
             return self.tasks
         return tuple(self.tasks[i] for i in self.level_tasks[level])
+
+    def resolve_task(self, level: str, task) -> int:
+        """Index (into ``tasks_for(level)``) of ``task`` given as an index, key or instruction.
+
+        Integer types (``int``, ``numpy.int64``) are indices; ``bool`` is not.
+
+        Raises:
+            ValueError: the task is not offered at this level; the message lists the valid choices.
+        """
+        tasks = self.tasks_for(level)
+        if _is_index(task):
+            if 0 <= int(task) < len(tasks):
+                return int(task)
+        elif isinstance(task, str):
+            wanted = task.strip().lower().replace("_", " ")
+            for i, spec in enumerate(tasks):
+                if wanted in (spec.key.replace("_", " "), spec.language):
+                    return i
+        choices = "; ".join(f"{i} = {t.key} ({t.language!r})" for i, t in enumerate(tasks))
+        raise ValueError(f"unknown task {task!r} for {self.name} {level}; valid tasks: {choices}")
+
+    def check_init_state(self, index) -> int:
+        """``index`` as an int if it names one of the init states, else ``ValueError``."""
+        if not (_is_index(index) and 0 <= int(index) < self.num_init_states):
+            raise ValueError(f"init_state must be an index in [0, {self.num_init_states}), got {index!r}")
+        return int(index)
+
+
+def _is_index(value) -> bool:
+    import numbers
+
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def parse_level(level: str) -> str:
+    """``"L1"`` for ``"L1"``, ``"l1"`` or ``"1"`` (likewise L2, Free); ``ValueError`` lists the valid forms."""
+    if level in LEVELS:
+        return level
+    canonical = LEVEL_ALIASES.get(str(level).strip().lower())
+    if canonical is None:
+        raise ValueError(f"unknown level {level!r}; valid levels: {', '.join(LEVELS)} (or 1, 2, free)")
+    return canonical
+
+
+def _safelibero(name: str, max_steps: int, tasks: tuple[TaskSpec, ...], level_tasks: dict, object_slots: int,
+                max_grasps: int) -> SuiteSpec:
+    ids = {level: f"SafeLibero-{name.capitalize()}-{level}-v0" for level in LEVELS}
+    return SuiteSpec(name, max_steps, tasks, level_tasks, object_slots, ids,
+                     "detaug_gym.envs.safe_libero:SafeLiberoEnv", max_grasps,
+                     level_kwargs={level: {"suite": name, "level": level} for level in LEVELS})
 
 
 def _spatial(key: str, index: int, where: str) -> TaskSpec:
@@ -64,47 +159,41 @@ def _object(key: str, index: int, what: str) -> TaskSpec:
 
 
 SUITES: dict[str, SuiteSpec] = {
-    "spatial": SuiteSpec(
-        name="spatial",
-        max_steps=220,
-        tasks=(
+    "spatial": _safelibero(
+        "spatial", 220,
+        (
             _spatial("bowl_between_plate_ramekin", 0, "between the plate and the ramekin"),
             _spatial("bowl_on_ramekin", 5, "on the ramekin"),
             _spatial("bowl_on_stove", 7, "on the stove"),
             _spatial("bowl_on_cabinet", 9, "on the wooden cabinet"),
         ),
-        level_tasks={"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)},
-        object_slots=2,
+        {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)}, object_slots=2, max_grasps=1,
     ),
-    "object": SuiteSpec(
-        name="object",
-        max_steps=280,
-        tasks=(
+    "object": _safelibero(
+        "object", 280,
+        (
             _object("orange_juice", 9, "orange juice"),
             _object("chocolate_pudding", 8, "chocolate pudding"),
             _object("milk", 7, "milk"),
             _object("bbq_sauce", 3, "bbq sauce"),
         ),
-        level_tasks={"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)},
-        object_slots=2,
+        {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)}, object_slots=2, max_grasps=1,
     ),
-    "goal": SuiteSpec(
-        name="goal",
-        max_steps=300,
-        tasks=(
+    "goal": _safelibero(
+        "goal", 300,
+        (
             TaskSpec("bowl_on_plate", "libero_goal", 8, "put the bowl on the plate"),
             TaskSpec("bowl_on_cabinet", "libero_goal", 4, "put the bowl on top of the cabinet"),
             TaskSpec("bowl_on_stove", "libero_goal", 1, "put the bowl on the stove"),
             TaskSpec("drawer_bowl", "libero_goal", 3, "open the top drawer and put the bowl inside"),
             TaskSpec("cream_cheese_in_bowl", "libero_goal", 6, "put the cream cheese in the bowl"),
         ),
-        level_tasks={"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 4)},
-        object_slots=2,
+        # the drawer task: drawer handle, then bowl
+        {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 4)}, object_slots=2, max_grasps=2,
     ),
-    "long": SuiteSpec(
-        name="long",
-        max_steps=520,
-        tasks=(
+    "long": _safelibero(
+        "long", 520,
+        (
             TaskSpec("soup_cheese_basket", "libero_10", 7,
                      "put both the alphabet soup and the cream cheese box in the basket"),
             TaskSpec("soup_sauce_basket", "libero_10", 0,
@@ -114,41 +203,41 @@ SUITES: dict[str, SuiteSpec] = {
             TaskSpec("mug_plate_pudding", "libero_10", 6,
                      "put the white mug on the plate and the chocolate pudding to the right of the plate"),
         ),
-        level_tasks={"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)},
-        object_slots=4,
+        {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)}, object_slots=4, max_grasps=2,
+    ),
+    "newton": SuiteSpec(
+        name="newton",
+        max_steps=200,
+        tasks=(TaskSpec("newton_cube", "", -1, "pick up the cube and place it on the target"),),
+        level_tasks={"L2": (0,)},
+        object_slots=2,
+        ids={"L2": "Newton-PickPlace-Cylinder-v0", "Free": "Newton-PickPlace-v0"},
+        entry_point="detaug_gym.envs.newton:NewtonPickPlaceEnv",
+        max_grasps=1,
+        shape_source_level=None,
+        level_kwargs={"L2": {"cylinder": True}, "Free": {"cylinder": False}},
     ),
 }
 
 
-def check_level(level: str) -> str:
-    """Return ``level`` if valid, else raise ``ValueError`` naming the valid levels."""
-    if level not in LEVELS:
-        raise ValueError(f"unknown level {level!r}; valid levels: {', '.join(LEVELS)}")
-    return level
-
-
 def get_suite(name: str) -> SuiteSpec:
     """The suite called ``name`` (case-insensitive); ``ValueError`` lists the valid names."""
-    key = name.lower()
+    key = str(name).lower()
     if key not in SUITES:
         raise ValueError(f"unknown suite {name!r}; valid suites: {', '.join(SUITES)}")
     return SUITES[key]
 
 
-def resolve_task(suite: SuiteSpec, level: str, task: int | str) -> int:
-    """Index (into ``suite.tasks_for(level)``) of ``task`` given as an index, key or language string.
+def suite_of_env(env_id: str) -> tuple[SuiteSpec, str]:
+    """``(suite, level)`` of a registered env id (``"detaug_gym:"`` prefix allowed); ``ValueError`` lists the ids."""
+    bare = env_id[len(ENV_PREFIX):] if env_id.startswith(ENV_PREFIX) else env_id
+    for suite in SUITES.values():
+        for level, candidate in suite.ids.items():
+            if candidate == bare:
+                return suite, level
+    raise ValueError(f"unknown env id {env_id!r}; registered ids: {', '.join(all_env_ids())}")
 
-    Raises:
-        ValueError: the task is not offered at this level; the message lists the valid choices.
-    """
-    tasks = suite.tasks_for(level)
-    if isinstance(task, (int,)) and not isinstance(task, bool):
-        if 0 <= task < len(tasks):
-            return int(task)
-    elif isinstance(task, str):
-        wanted = task.strip().lower().replace("_", " ")
-        for i, spec in enumerate(tasks):
-            if wanted in (spec.key.replace("_", " "), spec.language):
-                return i
-    choices = "; ".join(f"{i} = {t.key} ({t.language!r})" for i, t in enumerate(tasks))
-    raise ValueError(f"unknown task {task!r} for {suite.name} {level}; valid tasks: {choices}")
+
+def all_env_ids() -> list[str]:
+    """Every env id of every suite, suite by suite."""
+    return [suite.ids[level] for suite in SUITES.values() for level in suite.levels]
