@@ -23,27 +23,20 @@ from pathlib import Path
 import gymnasium as gym
 
 import detaug_gym  # noqa: F401
-from detaug_gym.envs import safe_libero_id
+from detaug_gym.envs.suites import SUITES
 from detaug_gym.policies import make_policy
-
-NEWTON_ID = "Newton-PickPlace-v0"
+from detaug_gym.rollout import ObstacleMetrics, rollout
 
 
 def env_id(suite: str, level: str) -> str:
-    return NEWTON_ID if suite == "newton" else safe_libero_id(suite, level)
+    return SUITES[suite].env_id(level)
 
 
 def run_episode(env: gym.Env, expert, task: int, index: int) -> dict:
     seed = 1000 + index
-    obs, info = env.reset(seed=seed, options={"task": task, "init_state": index % 50})
-    expert.reset(seed=seed)
-    collided, steps, done = False, 0, False
-    while not done:
-        obs, _, terminated, truncated, info = env.step(expert.act(obs))
-        collided |= bool(info.get("collision", False))
-        steps += 1
-        done = terminated or truncated
-    return {"success": bool(info.get("is_success")), "collision": collided, "steps": steps,
+    metrics = ObstacleMetrics()
+    result = rollout(env, expert, seed=seed, options={"task": task, "init_state": index % 50}, hooks=[metrics])
+    return {"success": bool(result.info.get("is_success")), "collision": metrics.collision, "steps": result.steps,
             "recipe": expert.recipe.key if expert.recipe else None}
 
 
@@ -52,7 +45,7 @@ def measure(suite: str, level: str, episodes: int, tasks: list[int] | None, out:
     env = gym.make(env_id(suite, level))
     expert = make_policy("scripted")
     name = env_id(suite, level)
-    task_ids = tasks if tasks is not None else list(range(len(getattr(env.unwrapped, "tasks", [0]))))
+    task_ids = tasks if tasks is not None else list(range(len(env.unwrapped.tasks)))
     for task in task_ids:
         start, ran = time.time(), 0
         for index in range(episodes):
@@ -91,8 +84,7 @@ def table(rows: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--suites", nargs="+", default=["spatial", "object", "goal", "long", "newton"],
-                        choices=["spatial", "object", "goal", "long", "newton"])
+    parser.add_argument("--suites", nargs="+", default=list(SUITES), choices=list(SUITES))
     parser.add_argument("--levels", nargs="+", default=["Free"], choices=["Free", "L1", "L2"])
     parser.add_argument("--episodes", type=int, default=50, help="episodes per task (init state i %% 50)")
     parser.add_argument("--tasks", type=int, nargs="+", default=None, help="task indices (default all)")
@@ -102,7 +94,7 @@ def main() -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if not args.report:
         for suite in args.suites:
-            for level in (["Free"] if suite == "newton" else args.levels):
+            for level in [lv for lv in args.levels if lv in SUITES[suite].levels]:
                 measure(suite, level, args.episodes, args.tasks, args.out)
     print(table(read(args.out)))
 

@@ -15,6 +15,9 @@ Examples (copy-paste)::
     # method options after a colon (name:key=value,key=value): the paper's K sweep and ablations
     python -m detaug_gym.bench --methods detaug:k=1 detaug:k=8 detaug detaug:latch=True detaug:labels=zero
 
+    # env options for every cell (gym.make kwargs): a shorter step limit, robosuite's own controller
+    python -m detaug_gym.bench --methods scripted --env-kwargs max_episode_steps=100 controller=stock
+
 Every method sees the same episodes: episode ``i`` of a (suite, level) cell uses task ``i mod #tasks``,
 and the same seed (hence the same LIBERO init state and the same obstacle) for every method. Each
 finished episode is appended to ``<out>/episodes.jsonl`` at once; rerunning the same command skips the
@@ -28,20 +31,44 @@ import argparse
 import ast
 import json
 import os
-import zlib
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 
 from tqdm import tqdm
 
-from detaug_gym.envs.suites import SUITES
+from detaug_gym.config import add_dataclass_arguments
+from detaug_gym.envs.suites import SUITES, get_suite, parse_level
 from detaug_gym.report import read_records, write_report
 from detaug_gym.rollout import EpisodeKey, run_episode
+from detaug_gym.seeds import bench_episode_seed
 
-LEVEL_NAMES = {"1": "L1", "2": "L2", "free": "Free", "l1": "L1", "l2": "L2"}
 DEFAULT_METHODS = ("detaug", "base", "scripted")
+
+
+@dataclass
+class BenchConfig:
+    """What ``python -m detaug_gym.bench`` runs (every field is a command-line flag)."""
+
+    methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
+    """Registered policy names, each optionally with options: detaug:k=8,latch=True."""
+    suites: list[str] = field(default_factory=lambda: ["spatial"])
+    """Suites of the suite registry: spatial object goal long newton."""
+    levels: list[str] = field(default_factory=lambda: ["1", "2"])
+    """Levels: 1 2 free (a suite without a level, like newton's 1, skips it)."""
+    episodes: int = 4
+    """Episodes per (method, suite, level) cell."""
+    seed: int = 0
+    """Run seed; episode seeds derive from it (detaug_gym.seeds.bench_episode_seed)."""
+    workers: int = 1
+    """Parallel worker processes."""
+    threads: int = 1
+    """Torch threads per worker."""
+    out: str = "results/default"
+    """Output folder (rerun the same command to resume)."""
+    env_kwargs: list[str] = field(default_factory=list)
+    """gym.make kwargs for every cell, key=value (max_episode_steps=100 controller=stock)."""
 
 
 @dataclass(frozen=True)
@@ -50,23 +77,28 @@ class Job:
     suite: str
     level: str
     threads: int = 1
+    env_kwargs: tuple[tuple[str, object], ...] = ()
 
 
 def parse_levels(values: list[str]) -> list[str]:
-    out = []
-    for value in values:
-        if value.lower() not in LEVEL_NAMES:
-            raise SystemExit(f"unknown level {value!r}; valid levels: 1, 2, free")
-        out.append(LEVEL_NAMES[value.lower()])
-    return out
+    try:
+        return [parse_level(v) for v in values]
+    except ValueError as exc:
+        raise SystemExit(f"{exc}") from None
 
 
 def parse_suites(values: list[str]) -> list[str]:
-    valid = [*SUITES, "newton"]
-    for value in values:
-        if value.lower() not in valid:
-            raise SystemExit(f"unknown suite {value!r}; valid suites: {', '.join(valid)}")
-    return [v.lower() for v in values]
+    try:
+        return [get_suite(v).name for v in values]
+    except ValueError as exc:
+        raise SystemExit(f"{exc}") from None
+
+
+def _literal(value: str):
+    try:
+        return ast.literal_eval(value.strip())
+    except (ValueError, SyntaxError):
+        return value.strip()
 
 
 def parse_method(spec: str) -> tuple[str, dict]:
@@ -78,11 +110,19 @@ def parse_method(spec: str) -> tuple[str, dict]:
         key, eq, value = item.partition("=")
         if not eq or not key.strip().isidentifier():
             raise SystemExit(f"bad method option {item!r} in {spec!r}; write name:key=value[,key=value]")
-        try:
-            kwargs[key.strip()] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            kwargs[key.strip()] = value.strip()
+        kwargs[key.strip()] = _literal(value)
     return name.lower(), kwargs
+
+
+def parse_env_kwargs(items: list[str]) -> dict:
+    """``["max_episode_steps=100", "controller=stock"]`` -> ``{"max_episode_steps": 100, "controller": "stock"}``."""
+    out = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip().isidentifier():
+            raise SystemExit(f"bad --env-kwargs item {item!r}; write key=value (max_episode_steps=100)")
+        out[key.strip()] = _literal(value)
+    return out
 
 
 def check_methods(methods: list[str], suite: str = "spatial") -> None:
@@ -102,29 +142,37 @@ def check_methods(methods: list[str], suite: str = "spatial") -> None:
                 raise SystemExit(f"method {spec!r}: {exc}") from exc
 
 
-def env_id_for(suite: str, level: str) -> str:
-    if suite == "newton":
-        return "Newton-PickPlace-v0" if level == "Free" else "Newton-PickPlace-Cylinder-v0"
-    return f"SafeLibero-{suite.capitalize()}-{level}-v0"
+def check_env_kwargs(cells: list[tuple[str, str]], env_kwargs: dict) -> None:
+    """Fail before any episode runs when the envs reject ``env_kwargs`` (making an env builds no scene)."""
+    if not env_kwargs:
+        return
+    import gymnasium as gym
+
+    import detaug_gym  # noqa: F401
+
+    for suite, level in cells:
+        try:
+            gym.make(SUITES[suite].env_id(level), **env_kwargs).close()
+        except (TypeError, ValueError) as exc:
+            raise SystemExit(f"--env-kwargs {env_kwargs} rejected by {SUITES[suite].env_id(level)}: {exc}") from None
 
 
-def episode_seed(base_seed: int, suite: str, level: str, episode: int) -> int:
-    """A seed per (run seed, cell, episode), independent of the method and of the worker count."""
-    return (zlib.crc32(f"{base_seed}/{suite}/{level}".encode()) + 7919 * episode) % (2**31)
+def plan_cells(suites: list[str], levels: list[str]) -> list[tuple[str, str]]:
+    """The (suite, level) cells to run: each suite at the asked levels it has (Newton has no L1)."""
+    return [(s, lv) for s in suites for lv in levels if lv in SUITES[s].levels]
 
 
-def plan_jobs(methods, suites, levels, episodes, seed) -> list[Job]:
+def plan_jobs(methods, suites, levels, episodes, seed, env_kwargs: dict | None = None) -> list[Job]:
     jobs = []
-    for suite in suites:
-        for level in levels:
-            if suite == "newton" and level == "L1":
-                continue  # the Newton task has one obstacle level (the cylinder on the path)
-            n_tasks = 1 if suite == "newton" else len(SUITES[suite].tasks_for(level))
-            for method in methods:
-                for ep in range(episodes):
-                    key = EpisodeKey(method, env_id_for(suite, level), ep % n_tasks, ep,
-                                     episode_seed(seed, suite, level, ep))
-                    jobs.append(Job(key, suite, level))
+    kwargs = tuple(sorted((env_kwargs or {}).items()))
+    for suite, level in plan_cells(suites, levels):
+        spec = SUITES[suite]
+        n_tasks = len(spec.tasks_for(level))
+        for method in methods:
+            for ep in range(episodes):
+                key = EpisodeKey(method, spec.env_id(level), ep % n_tasks, ep,
+                                 bench_episode_seed(seed, suite, level, ep))
+                jobs.append(Job(key, suite, level, env_kwargs=kwargs))
     # Group by env so a worker reuses its compiled scenes, and by method so policies load once.
     return sorted(jobs, key=lambda j: (j.key.env_id, j.key.method, j.key.episode))
 
@@ -141,10 +189,10 @@ def _run_job(job: Job) -> dict:
     from detaug_gym.policies import make_policy
 
     torch.set_num_threads(job.threads)  # torch's worker threads stall when several processes share the cores
-    env_key, pol_key = ("env", job.key.env_id), ("policy", job.key.method, job.suite)
+    env_key, pol_key = ("env", job.key.env_id, job.env_kwargs), ("policy", job.key.method, job.suite)
     try:
         if env_key not in _CACHE:
-            _CACHE[env_key] = gym.make(job.key.env_id)
+            _CACHE[env_key] = gym.make(job.key.env_id, **dict(job.env_kwargs))
         if pol_key not in _CACHE:
             name, options = parse_method(job.key.method)
             _CACHE[pol_key] = make_policy(name, suite=job.suite, **options)
@@ -160,15 +208,25 @@ def _run_job(job: Job) -> dict:
     return record.to_json()
 
 
-def run(args: argparse.Namespace) -> str:
-    methods = [m if ":" in m else m.lower() for m in args.methods]
-    suites, levels = parse_suites(args.suites), parse_levels(args.levels)
+def run(cfg: BenchConfig) -> str:
+    """Run the episodes of ``cfg`` not yet in ``<out>/episodes.jsonl``, then rewrite the tables; returns the
+    Markdown table."""
+    methods = [m if ":" in m else m.lower() for m in cfg.methods]
+    suites, levels = parse_suites(cfg.suites), parse_levels(cfg.levels)
+    cells = plan_cells(suites, levels)
+    if not cells:
+        raise SystemExit(f"no cell to run: suites {', '.join(suites)} have none of the levels "
+                         f"{', '.join(levels)} (their levels: "
+                         + "; ".join(f"{s}: {', '.join(SUITES[s].levels)}" for s in suites) + ")")
+    env_kwargs = parse_env_kwargs(cfg.env_kwargs)
     check_methods(methods, suites[0])
-    out = Path(args.out)
+    check_env_kwargs(cells, env_kwargs)
+    out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     log = out / "episodes.jsonl"
     done = {(r["method"], r["env_id"], r["task"], r["episode"], r["seed"]) for r in read_records(log)}
-    jobs = [replace(j, threads=args.threads) for j in plan_jobs(methods, suites, levels, args.episodes, args.seed)
+    jobs = [replace(j, threads=cfg.threads)
+            for j in plan_jobs(methods, suites, levels, cfg.episodes, cfg.seed, env_kwargs)
             if j.key.as_tuple() not in done]
     print(f"{len(done)} episodes already in {log}; {len(jobs)} to run")
     with open(log, "a") as f, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
@@ -180,11 +238,11 @@ def run(args: argparse.Namespace) -> str:
             bar.set_postfix_str(f"{result['method']} {result['env_id']} {result['termination']}")
             bar.update()
 
-        if args.workers <= 1:
+        if cfg.workers <= 1:
             for job in jobs:
                 record(_run_job(job))
         else:
-            with ProcessPoolExecutor(args.workers, mp_context=get_context("spawn")) as pool:
+            with ProcessPoolExecutor(cfg.workers, mp_context=get_context("spawn")) as pool:
                 for result in pool.map(_run_job, jobs, chunksize=1):
                     record(result)
     text = write_report(read_records(log), out)
@@ -196,20 +254,17 @@ def run(args: argparse.Namespace) -> str:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m detaug_gym.bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS),
-                   help="registered policy names, each optionally with options: detaug:k=8,latch=True")
-    p.add_argument("--suites", nargs="+", default=["spatial"], help="spatial object goal long newton")
-    p.add_argument("--levels", nargs="+", default=["1", "2"], help="1 2 free")
-    p.add_argument("--episodes", type=int, default=4, help="episodes per (method, suite, level) cell")
-    p.add_argument("--seed", type=int, default=0, help="run seed; episode seeds derive from it")
-    p.add_argument("--workers", type=int, default=1, help="parallel worker processes")
-    p.add_argument("--threads", type=int, default=1, help="torch threads per worker")
-    p.add_argument("--out", default="results/default", help="output folder (rerun the same command to resume)")
+    add_dataclass_arguments(p, BenchConfig)
     return p
 
 
+def parse_config(argv: list[str] | None = None) -> BenchConfig:
+    """The :class:`BenchConfig` of a command line."""
+    return BenchConfig(**vars(build_parser().parse_args(argv)))
+
+
 def main(argv: list[str] | None = None) -> None:
-    run(build_parser().parse_args(argv))
+    run(parse_config(argv))
 
 
 if __name__ == "__main__":

@@ -36,9 +36,8 @@ import numpy as np
 import detaug_gym  # noqa: F401  (registers the env ids)
 from detaug_gym.data.dataset import OBSTACLE_PREFIX, DatasetWriter, Demo
 from detaug_gym.policies import make_policy
-
-NUM_INIT_STATES = 50
-SEED_STRIDE = 1000
+from detaug_gym.rollout import Hook, Step, rollout, until_done
+from detaug_gym.seeds import demo_seed
 
 
 @dataclass
@@ -138,8 +137,50 @@ class TaskStats:
     seconds: float = 0.0
 
 
-def episode_seed(base: int, task: int, index: int) -> int:
-    return base + SEED_STRIDE * task + index
+class NoiseHook(Hook):
+    """Adds an :class:`ActionNoise` disturbance to the sent action until the task is first solved (a recorded
+    tail is not disturbed)."""
+
+    def __init__(self, noise: ActionNoise, seed: int) -> None:
+        self.noise = noise
+        noise.reset(seed)
+        self.solved = False
+
+    def transform(self, action: np.ndarray) -> np.ndarray:
+        return action if self.solved else self.noise(action)
+
+    def on_step(self, step: Step) -> None:
+        self.solved |= step.terminated
+
+
+class DemoRecorder(Hook):
+    """Records an episode as a :class:`~detaug_gym.data.Demo`: the non-obstacle observations and the simulator
+    state before each action, the policy's actions (the targets) and, when a hook changed them, the sent ones."""
+
+    needs_states = True
+
+    def __init__(self, keep_sent: bool = False) -> None:
+        self.keep_sent = keep_sent
+        self.steps: list[Step] = []
+
+    def on_step(self, step: Step) -> None:
+        self.steps.append(step)
+
+    def demo(self, attrs: dict) -> Demo:
+        keys = [k for k in self.steps[0].obs if not k.startswith(OBSTACLE_PREFIX)]
+        actions = np.asarray([s.action for s in self.steps], dtype=np.float32)
+        sent = np.asarray([s.sent for s in self.steps], dtype=np.float32)
+        dones = np.asarray([float(s.terminated) for s in self.steps], dtype=np.float32)
+        return Demo(
+            actions=actions,
+            states=np.asarray([s.state for s in self.steps], dtype=np.float64),
+            obs={k: np.asarray([s.obs[k] for s in self.steps], dtype=np.float32) for k in keys},
+            gripper_command=actions[:, -1].copy(),
+            attrs=attrs,
+            rewards=np.asarray([s.reward for s in self.steps], dtype=np.float32),
+            dones=dones,
+            executed_actions=sent if self.keep_sent else None,
+        )
 
 
 def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: str,
@@ -152,72 +193,32 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
     not disturbed), and the episode counts as a success only if the task is still solved at the end of it.
     """
     options = {"init_state": init_state}
-    if _num_tasks(env) > 1:
+    if len(env.unwrapped.tasks) > 1:
         options["task"] = task
-    obs, info = env.reset(seed=seed, options=options)
-    policy.reset(seed=seed)
-    if noise is not None:
-        noise.reset(seed)
+    recorder = DemoRecorder(keep_sent=noise is not None)
+    hooks = [recorder] if noise is None else [NoiseHook(noise, seed), recorder]
+    result = rollout(env, policy, seed=seed, options=options, hooks=hooks, stop=until_done(tail_steps))
     base = env.unwrapped
-    keys = [k for k in obs if not k.startswith(OBSTACLE_PREFIX)]
-    observations = {k: [] for k in keys}
-    states, actions, executed, rewards, dones = [], [], [], [], []
-    solved_at: int | None = None
-    done = False
-    while not done:
-        action = np.asarray(policy.act(obs), dtype=np.float32)
-        sent = action if noise is None or solved_at is not None else noise(action)
-        for k in keys:
-            observations[k].append(obs[k])
-        states.append(base.get_state())
-        obs, reward, terminated, truncated, info = env.step(sent)
-        if solved_at is None and terminated:
-            solved_at = len(states)
-        done = truncated if solved_at is None else len(states) - solved_at >= tail_steps
-        actions.append(action)
-        executed.append(sent)
-        rewards.append(reward)
-        dones.append(float(terminated))
-    task_key = getattr(getattr(base, "task_spec", None), "key", env_id)
     attrs = {
         "env_id": env_id,
         "task": int(task),
-        "task_key": task_key,
+        "task_key": base.task_spec.key,
         "init_state": int(init_state),
         "seed": int(seed),
-        "controller": json.dumps(controller_settings(base)),
+        "controller": json.dumps(controller_settings(base.controller)),
     }
     if tail_steps:
         attrs["tail_steps"] = int(tail_steps)
     if noise is not None:
         attrs["action_noise"] = json.dumps({"sigma": noise.sigma, "tau": noise.tau, "duty": noise.duty,
                                             "burst": noise.burst, "dims": "xyz"})
-    actions_arr = np.asarray(actions, dtype=np.float32)
-    demo = Demo(
-        actions=actions_arr,
-        states=np.asarray(states, dtype=np.float64),
-        obs={k: np.asarray(v, dtype=np.float32) for k, v in observations.items()},
-        gripper_command=actions_arr[:, -1].copy(),
-        attrs=attrs,
-        rewards=np.asarray(rewards, dtype=np.float32),
-        dones=np.asarray(dones, dtype=np.float32),
-        executed_actions=None if noise is None else np.asarray(executed, dtype=np.float32),
-    )
-    return demo, solved_at is not None and bool(info.get("is_success", False))
+    solved = any(s.terminated for s in recorder.steps)
+    return recorder.demo(attrs), solved and bool(result.info.get("is_success", False))
 
 
-def controller_settings(base) -> dict:
-    return {"type": "OSC_POSE", "stepper": getattr(base, "controller", "stock"), "control_freq": 20,
+def controller_settings(stepper: str) -> dict:
+    return {"type": "OSC_POSE", "stepper": stepper, "control_freq": 20,
             "pos_scale": 0.05, "rot_scale": 0.5, "gripper": "-1 open, +1 close"}
-
-
-def _num_tasks(env) -> int:
-    return int(env.observation_space["task_id"].shape[0])
-
-
-def _task_key(env, task: int) -> str:
-    tasks = getattr(env.unwrapped, "tasks", None)
-    return tasks[task].key if tasks else env.spec.id
 
 
 def parse_tasks(spec: str, num_tasks: int) -> list[int]:
@@ -238,14 +239,15 @@ def collect(args: CollectArgs) -> list[TaskStats]:
 
     env_kwargs = {} if args.controller is None else {"controller": args.controller}
     env = gym.make(args.env, **env_kwargs)
-    tasks = parse_tasks(args.task, _num_tasks(env))
+    base = env.unwrapped
+    tasks = parse_tasks(args.task, len(base.tasks))
     policy = make_policy(args.policy)
     noise = (ActionNoise(args.action_noise, args.noise_tau, args.noise_duty, args.noise_burst)
              if args.action_noise > 0 else None)
     env_args = {"env_name": args.env, "env_version": getattr(detaug_gym, "__version__", "0"),
                 "type": "detaug_gym", "env_kwargs": env_kwargs}
     max_attempts = args.max_attempts or 2 * args.demos
-    stats = [TaskStats(t, _task_key(env, t)) for t in tasks]
+    stats = [TaskStats(t, base.tasks[t].key) for t in tasks]
     try:
         with DatasetWriter(args.out, env_args) as writer, \
                 tqdm(total=len(tasks) * args.demos, desc=args.env, unit="demo") as bar:
@@ -254,7 +256,7 @@ def collect(args: CollectArgs) -> list[TaskStats]:
                 for i in range(max_attempts):
                     if st.kept >= args.demos:
                         break
-                    init_state, seed = i % NUM_INIT_STATES, episode_seed(args.seed, st.task, i)
+                    init_state, seed = i % base.suite.num_init_states, demo_seed(args.seed, st.task, i)
                     if writer.has(st.task, init_state, seed):
                         st.kept += 1
                         st.resumed += 1

@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-SUITE_ORDER = ("spatial", "object", "goal", "long", "newton")
+from detaug_gym.envs.suites import SUITES
+
+SUITE_ORDER = tuple(SUITES)
 METRICS = ("Clean", "Total", "Avoid", "Timeout")
 
 

@@ -1,17 +1,199 @@
-"""The one rollout loop every method runs through, and the per-episode record it produces."""
+"""The one rollout loop: every episode in the project (bench, collection, demo replay, augmentation replay)
+steps its env here, and what differs between them is a hook on this loop.
+
+    result = rollout(env, policy, seed=3, options={"task": 1}, hooks=[recorder])
+
+The loop: start the episode (``env.reset(seed, options)``, or ``start(env)`` for a restored frame), reset the
+policy with the seed and the :class:`EpisodeContext`, then per step ``action = policy.act(obs)``, each hook's
+:meth:`Hook.transform` in turn (action noise), ``env.step``, each hook's :meth:`Hook.on_step` (recording,
+metrics), until ``stop(step)`` (default: terminated or truncated). Only this module and ``detaug_gym/envs/``
+call ``env.step``.
+
+:func:`run_episode` is the bench's episode: a metrics hook, the policy's per-episode summary and an
+:class:`EpisodeRecord` (one JSON line); it never raises.
+"""
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 import traceback
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from detaug_gym.policies.base import Policy
 
 
+@dataclass(frozen=True)
+class EpisodeContext:
+    """What a policy may know about its episode beyond the observation (a policy may ignore it).
+
+    Attributes:
+        env_id: the registered id (``"SafeLibero-Spatial-L2-v0"``).
+        suite: suite name (``"spatial"``); level: ``"L1" | "L2" | "Free"``.
+        task: task index into the level's task list; task_key: its short name; instruction: its language.
+        seed: the episode's seed (None when unseeded).
+    """
+
+    env_id: str
+    suite: str
+    level: str
+    task: int
+    task_key: str
+    instruction: str
+    seed: int | None = None
+
+
+def episode_context(env, seed: int | None = None) -> EpisodeContext | None:
+    """The context of the episode ``env`` is in (after a reset); None for envs that are not ours."""
+    base = env.unwrapped
+    suite = getattr(base, "suite", None)
+    if suite is None or getattr(base, "episode", None) is None:
+        return None
+    spec = base.task_spec
+    return EpisodeContext(suite.env_id(base.level), suite.name, base.level, int(base.episode.task), spec.key,
+                          spec.language, seed)
+
+
+@dataclass
+class Step:
+    """One transition. ``action`` is the policy's, ``sent`` what the env received (after the hooks'
+    transforms); ``state`` the flattened simulator state before the step (only when a hook asks for it)."""
+
+    index: int
+    obs: dict[str, np.ndarray]
+    action: np.ndarray
+    sent: np.ndarray
+    next_obs: dict[str, np.ndarray]
+    reward: float
+    terminated: bool
+    truncated: bool
+    info: dict
+    state: np.ndarray | None = None
+
+
+class Hook:
+    """An observer of the rollout loop; override what you need. ``needs_states = True`` makes the loop read
+    the simulator state before every step into :attr:`Step.state`."""
+
+    needs_states = False
+
+    def on_start(self, env, obs: dict[str, np.ndarray], info: dict) -> None:
+        """Called once the episode has started, before the first action."""
+
+    def transform(self, action: np.ndarray) -> np.ndarray:
+        """The action to send instead of ``action`` (7,) (default: unchanged)."""
+        return action
+
+    def on_step(self, step: Step) -> None:
+        """Called after every env step."""
+
+
+@dataclass
+class RolloutResult:
+    """How a rollout ended: ``steps`` taken, the last ``obs`` / ``info``, and the start's ``info``."""
+
+    steps: int
+    obs: dict[str, np.ndarray]
+    info: dict
+    start_info: dict
+    context: EpisodeContext | None = None
+
+
+def until_done(tail_steps: int = 0, truncation: bool = True) -> Callable[[Step], bool]:
+    """Stop rule: the episode's end (terminated, or truncated unless ``truncation=False``), or with
+    ``tail_steps`` that many steps past the first success (the step limit no longer applies in the tail)."""
+    solved_at: list[int] = []
+
+    def stop(step: Step) -> bool:
+        if not solved_at and step.terminated:
+            solved_at.append(step.index)
+        if not solved_at:
+            return truncation and step.truncated
+        return step.index - solved_at[0] >= tail_steps
+
+    return stop
+
+
+def rollout(env, policy: Policy, *, seed: int | None = None, options: Mapping | None = None,
+            start: Callable[[object], tuple[dict, dict]] | None = None, hooks: Iterable[Hook] = (),
+            stop: Callable[[Step], bool] | None = None, max_steps: int | None = None,
+            dtype: type | None = np.float32) -> RolloutResult:
+    """Run one episode of ``policy`` in ``env`` through ``hooks`` (see the module docstring).
+
+    Args:
+        env: a gymnasium env (wrapped or not); the loop steps exactly this object.
+        policy: anything with ``reset(seed=...)`` and ``act(obs)``; ``reset`` also gets ``context=`` when it
+            accepts it.
+        seed, options: passed to ``env.reset`` (ignored with ``start``).
+        start: ``env -> (obs, info)`` that starts the episode instead of ``env.reset`` (e.g. ``env.restore``).
+        stop: ``Step -> bool``, called after the hooks; default :func:`until_done`.
+        max_steps: hard cap on the steps of this rollout, whatever ``stop`` says.
+        dtype: the policy's actions are cast to it (float32, the action space's); None sends them as they
+            are (the augmentation replay's float64 tracking actions).
+    """
+    hooks = list(hooks)
+    obs, info = start(env) if start is not None else env.reset(seed=seed, options=dict(options or {}))
+    context = episode_context(env, seed)
+    reset_policy(policy, seed, context)
+    for hook in hooks:
+        hook.on_start(env, obs, info)
+    start_info, stop = info, stop or until_done()
+    states = any(h.needs_states for h in hooks)
+    base = env.unwrapped
+    steps = 0
+    while max_steps is None or steps < max_steps:
+        action = np.asarray(policy.act(obs), dtype=dtype)
+        sent = action
+        for hook in hooks:
+            sent = hook.transform(sent)
+        state = base.get_state() if states else None
+        next_obs, reward, terminated, truncated, info = env.step(sent)
+        step = Step(steps, obs, action, sent, next_obs, float(reward), bool(terminated), bool(truncated), info,
+                    state)
+        steps += 1
+        for hook in hooks:
+            hook.on_step(step)
+        obs = next_obs
+        if stop(step):
+            break
+    return RolloutResult(steps, obs, info, start_info, context)
+
+
+def step_limit(env) -> int | None:
+    """The step limit an episode of ``env`` runs under: gymnasium's ``TimeLimit`` (``gym.make``), else the
+    env's own ``max_episode_steps``, else its suite's."""
+    spec = getattr(env, "spec", None)
+    if spec is not None and spec.max_episode_steps is not None:
+        return int(spec.max_episode_steps)
+    base = env.unwrapped
+    own = getattr(base, "max_steps", None)
+    if own is not None:
+        return int(own)
+    suite = getattr(base, "suite", None)
+    return None if suite is None else int(suite.max_steps)
+
+
+_ACCEPTS_CONTEXT: dict[type, bool] = {}
+
+
+def reset_policy(policy: Policy, seed: int | None, context: EpisodeContext | None) -> None:
+    """``policy.reset(seed=seed, context=context)``, or without ``context`` for policies written to the
+    older one-argument protocol."""
+    cls = type(policy)
+    if cls not in _ACCEPTS_CONTEXT:
+        params = inspect.signature(policy.reset).parameters
+        _ACCEPTS_CONTEXT[cls] = "context" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+    if _ACCEPTS_CONTEXT[cls]:
+        policy.reset(seed=seed, context=context)
+    else:
+        policy.reset(seed=seed)
+
+
+# ---------------------------------------------------------------------------------------------- the bench's episode
 @dataclass(frozen=True)
 class EpisodeKey:
     """Identifies an episode; every method sees the same (env_id, task, episode, seed) rollout."""
@@ -28,7 +210,11 @@ class EpisodeKey:
 
 @dataclass
 class EpisodeRecord:
-    """One JSON line of the bench: what happened in one episode."""
+    """One JSON line of the bench: what happened in one episode.
+
+    ``summary`` is the policy's own account of the episode (``policy.episode_summary()``, when it has one:
+    DetAug's selected costs, AEGIS's interventions, CAPE's guided replans).
+    """
 
     method: str
     env_id: str
@@ -47,33 +233,50 @@ class EpisodeRecord:
     wall_time: float = 0.0
     termination: str = "error"  # "success" | "timeout" | "error"
     error: str | None = None
+    task_key: str | None = None
+    summary: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return asdict(self)
+
+
+class ObstacleMetrics(Hook):
+    """The episode's start (init state, obstacle) and, over its steps, collision (latched), robot contact and
+    the smallest clearance; kept even when the episode later fails."""
+
+    def __init__(self) -> None:
+        self.collision = self.contact = False
+        self.clearance = math.inf
+        self.start_info: dict = {}
+        self.steps = 0
+
+    def on_start(self, env, obs: dict[str, np.ndarray], info: dict) -> None:
+        self.start_info = info
+
+    def on_step(self, step: Step) -> None:
+        self.steps += 1
+        self.collision |= bool(step.info["collision"])
+        self.contact |= bool(step.info["robot_obstacle_contact"])
+        self.clearance = min(self.clearance, float(step.info["min_clearance"]))
 
 
 def run_episode(env, policy: Policy, key: EpisodeKey, suite: str, level: str) -> EpisodeRecord:
     """Roll ``policy`` out in ``env`` for one episode; never raises (errors are recorded)."""
     record = EpisodeRecord(key.method, key.env_id, suite, level, key.task, key.episode, key.seed)
     start = time.perf_counter()
-    clearance = math.inf
+    metrics = ObstacleMetrics()
     try:
-        obs, info = env.reset(seed=key.seed, options={"task": key.task})
-        policy.reset(seed=key.seed)
-        record.init_state, record.obstacle = info.get("init_state"), info.get("obstacle")
-        done = False
-        while not done:
-            obs, _, terminated, truncated, info = env.step(np.asarray(policy.act(obs), dtype=np.float32))
-            record.steps += 1
-            record.collision |= bool(info["collision"])
-            record.contact |= bool(info["robot_obstacle_contact"])
-            clearance = min(clearance, float(info["min_clearance"]))
-            done = terminated or truncated
-        record.success = bool(info["is_success"])
+        result = rollout(env, policy, seed=key.seed, options={"task": key.task}, hooks=[metrics])
+        record.task_key = result.context.task_key if result.context else None
+        record.success = bool(result.info["is_success"])
         record.termination = "success" if record.success else "timeout"
+        summary = getattr(policy, "episode_summary", None)
+        record.summary = dict(summary()) if callable(summary) else {}
     except Exception as exc:  # one broken episode (policy bug, simulator instability) must not stop a run
         record.error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}"
         record.termination = "error"
-    record.min_clearance = None if math.isinf(clearance) else clearance
+    record.init_state, record.obstacle = metrics.start_info.get("init_state"), metrics.start_info.get("obstacle")
+    record.collision, record.contact, record.steps = metrics.collision, metrics.contact, metrics.steps
+    record.min_clearance = None if math.isinf(metrics.clearance) else metrics.clearance
     record.wall_time = time.perf_counter() - start
     return record

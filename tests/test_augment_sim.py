@@ -21,6 +21,7 @@ from detaug_gym.augment.replay import length_limit, run_plan, tail_steps
 from detaug_gym.collect import record_episode
 from detaug_gym.data import DatasetWriter, load
 from detaug_gym.policies import make_policy
+from detaug_gym.rollout import step_limit
 
 ENV_ID = "SafeLibero-Spatial-Free-v0"
 
@@ -75,7 +76,7 @@ def test_a_source_with_a_tail_is_replayed_past_its_first_success(env):
     demo, ok = record_episode(env, make_policy("scripted"), task=0, init_state=0, seed=0, env_id=ENV_ID,
                               tail_steps=15)
     assert ok and tail_steps(demo) == 15
-    assert length_limit(env, demo, None) == env.unwrapped.max_steps + 15
+    assert length_limit(env, demo, None) == step_limit(env) + 15
     ctx = SourceContext.build(env, demo)
     plan = build_plan(ctx.pos, ctx.quat, demo.gripper_command, [])
     replay = DetAugConfig().replay

@@ -29,18 +29,16 @@ class ExplodingPolicy:
 
 
 def _args(tmp_path, methods, episodes=2):
-    return bench.build_parser().parse_args(
-        ["--methods", *methods, "--suites", "newton", "--levels", "2", "--episodes", str(episodes),
-         "--seed", "3", "--out", str(tmp_path)])
+    return bench.BenchConfig(methods=methods, suites=["newton"], levels=["2"], episodes=episodes, seed=3,
+                             out=str(tmp_path), env_kwargs=["max_episode_steps=12"])  # short episodes: a fast test
 
 
 def _lines(tmp_path):
     return [json.loads(line) for line in (tmp_path / "episodes.jsonl").read_text().splitlines()]
 
 
-def test_bench_runs_resumes_and_reports(tmp_path, monkeypatch):
+def test_bench_runs_resumes_and_reports(tmp_path):
     register_policy("exploding", f"{__name__}:ExplodingPolicy")
-    monkeypatch.setattr("detaug_gym.envs.newton.MAX_STEPS", 12)  # short episodes keep the test fast
     text = bench.run(_args(tmp_path, ["random", "exploding"]))
     lines = _lines(tmp_path)
     assert len(lines) == 4

@@ -30,21 +30,10 @@ from detaug_gym.augment.segment import Segmentation, SegmentConfig, Transit, seg
 
 
 def reset_to_demo(env, demo) -> dict:
-    """Reset ``env`` to the demo's task / init state / seed and load its first recorded state; returns obs.
-
-    Same procedure as :func:`detaug_gym.data.replay`, so the controller's internal state (goal orientation,
-    gripper ramp) is the one the demo started with.
-    """
-    options = {}
-    if "task" in demo.attrs and hasattr(env.unwrapped, "tasks"):
-        options["task"] = int(demo.attrs["task"])
-    if int(demo.attrs.get("init_state", -1)) >= 0:
-        options["init_state"] = int(demo.attrs["init_state"])
-    seed = demo.attrs.get("seed")
-    env.reset(seed=None if seed is None else int(seed), options=options)
-    base = env.unwrapped
-    base.set_state(demo.states[0])
-    return base._observation()
+    """Put ``env`` on the demo's first recorded frame (:meth:`~detaug_gym.envs.base.ObstacleManipulationEnv.restore`:
+    its task, init state and seed, then its first state); returns the observation there."""
+    obs, _ = env.unwrapped.restore(demo.attrs, demo.states[0])
+    return obs
 
 
 @dataclass

@@ -53,6 +53,7 @@ from detaug_gym.augment.planner import (
 )
 from detaug_gym.augment.replay import ReplayConfig, length_limit, run_plan, tail_steps
 from detaug_gym.augment.segment import Transit
+from detaug_gym.envs.suites import get_suite
 
 __all__ = ["DemoGenConfig", "ObstacleShape", "augment_source", "label_size", "suite_of"]
 
@@ -163,9 +164,12 @@ def _build_shape_cache(suite: str, path: Path) -> None:
     import detaug_gym  # noqa: F401
     from detaug_gym.geometry.meshes import geom_pose_in_body, geom_trimesh
 
-    env = gym.make(f"SafeLibero-{suite.capitalize()}-L1-v0")
+    spec = get_suite(suite)
+    if spec.shape_source_level is None:
+        raise ValueError(f"suite {suite!r} has no scene with SafeLIBERO's obstacle set; use --shapes primitives")
+    env = gym.make(spec.env_id(spec.shape_source_level))
     try:
-        scene = env.unwrapped._scene(0)
+        scene = env.unwrapped.scene_for(0)
         arrays = {}
         for kind, h in scene.obstacles.items():
             parts = []  # the handle's own geom list: parked obstacles have their contacts switched off
@@ -245,7 +249,7 @@ class DemoGenSource:
     @classmethod
     def build(cls, env, demo, config: DemoGenConfig, suite: str) -> DemoGenSource:
         ctx = SourceContext.build(env, demo, config.segment, config.ik, config.feasibility.penetration)
-        problem = env.unwrapped._placement_problem(ctx.scene, np.random.default_rng(0))
+        problem = env.unwrapped.placement_problem(np.random.default_rng(0))
         footprints = [problem.pick, problem.place, *problem.others]
         held = {i: held_part(ctx, i) for i in range(len(ctx.segmentation.transits))}
         carrying = np.zeros(len(ctx.pos), dtype=bool)

@@ -8,7 +8,7 @@ failed sample adds one count to its rejection reason.
 
 Label layout: grasp ``k`` owns entries ``4k..4k+3`` = (approach label, carry label), each
 ``phi * (cos theta, sin theta)``; unbent transits and missing grasps are zeros. The size is fixed per suite,
-4 x the most grasps a task of the suite has (:data:`MAX_GRASPS`).
+4 x the most grasps a task of the suite has (the suite registry's ``max_grasps``).
 """
 
 from __future__ import annotations
@@ -26,24 +26,20 @@ from detaug_gym.augment.ik import IKConfig
 from detaug_gym.augment.plan import ArcSample, Plan, Timing, build_plan
 from detaug_gym.augment.replay import Recording, ReplayConfig, length_limit, run_plan, tail_steps
 from detaug_gym.augment.segment import SegmentConfig
+from detaug_gym.envs.suites import suite_of_env
 
-# Most grasps of any task in a suite: Goal's drawer task (drawer handle, then bowl) and the Long suite's
-# two-object tasks have two; everything else one.
-MAX_GRASPS = {"spatial": 1, "object": 1, "goal": 2, "long": 2, "newton": 1}
 LABEL_PER_GRASP = 4
 
 
 def suite_of(env_id: str) -> str:
-    """``"spatial"`` for ``SafeLibero-Spatial-Free-v0``, ``"newton"`` for the Newton ids."""
-    parts = env_id.split("-")
-    if parts[0].lower() == "safelibero" and len(parts) > 1:
-        return parts[1].lower()
-    return parts[0].lower()
+    """The suite name of a registered env id (``"spatial"`` for ``SafeLibero-Spatial-Free-v0``)."""
+    return suite_of_env(env_id)[0].name
 
 
 def label_size(env_id: str) -> int:
-    """Fixed label length for the suite of ``env_id``: 4 x its most grasps per task."""
-    return LABEL_PER_GRASP * MAX_GRASPS.get(suite_of(env_id), 2)
+    """Fixed label length for the suite of ``env_id``: 4 x its most grasps per task
+    (:attr:`~detaug_gym.envs.suites.SuiteSpec.max_grasps`)."""
+    return LABEL_PER_GRASP * suite_of_env(env_id)[0].max_grasps
 
 
 @dataclass(frozen=True)

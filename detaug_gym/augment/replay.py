@@ -38,6 +38,7 @@ import numpy as np
 from detaug_gym.augment.feasibility import grip_frame_position
 from detaug_gym.augment.ik import quat_xyzw_to_mat, rotation_error
 from detaug_gym.augment.plan import Plan
+from detaug_gym.rollout import Hook, Step, rollout, step_limit, until_done
 
 POS_SCALE = 0.05  # m per unit action, robosuite OSC_POSE output_max
 ROT_SCALE = 0.5  # rad per unit action
@@ -134,7 +135,71 @@ def length_limit(env, demo, max_length: int | None) -> int:
     """Longest acceptable copy of ``demo``: ``max_length``, else the env's episode limit plus the demo's tail."""
     if max_length:
         return int(max_length)
-    return int(getattr(env.unwrapped, "max_steps", 10 ** 9)) + tail_steps(demo)
+    limit = step_limit(env)
+    return (10 ** 9 if limit is None else limit) + tail_steps(demo)
+
+
+class PlanFollower:
+    """The policy that executes a :class:`Plan`: the source's raw actions before the first arc (with
+    ``raw_prefix``), the source's goals on copied steps, closed-loop tracking on arcs, then holds
+    (see the module docstring). It reads the end-effector pose from the scene in float64."""
+
+    def __init__(self, scene, plan: Plan, source_actions: np.ndarray, config: ReplayConfig) -> None:
+        self.scene, self.plan, self.source_actions, self.config = scene, plan, source_actions, config
+        self.first_arc = plan.spans[0].start if plan.spans else plan.n_steps
+        self.i = 0
+
+    def reset(self, seed: int | None = None) -> None:
+        self.i = 0
+
+    def act(self, obs) -> np.ndarray:
+        plan, i = self.plan, self.i
+        self.i += 1
+        if i >= plan.n_steps:
+            action = np.zeros(7)
+            action[6] = plan.gripper[-1]
+            return action
+        if plan.source_step[i] >= 0 and (self.config.raw_prefix and i < self.first_arc):
+            return np.asarray(self.source_actions[plan.source_step[i]], dtype=np.float64)
+        pos, quat = self.scene.eef_pose()
+        if plan.source_step[i] >= 0:
+            return source_goal_action(pos, quat_xyzw_to_mat(quat), plan.target_pos[i],
+                                      quat_xyzw_to_mat(plan.target_quat[i]), self.source_actions[plan.source_step[i]])
+        return tracking_action(pos, quat_xyzw_to_mat(quat), plan.target_pos[i + 1],
+                               quat_xyzw_to_mat(plan.target_quat[i + 1]), plan.target_pos[i], plan.gripper[i],
+                               self.config.lead)
+
+
+class PlanRecorder(Hook):
+    """Records the replay (obs, states, sent actions) and how well it tracked: the eef's largest distance from
+    its span's arc and the held object's drift in the grip-site frame (``held_body``: span index -> body)."""
+
+    needs_states = True
+
+    def __init__(self, scene, plan: Plan, held_body: dict[int, int] | None) -> None:
+        self.scene, self.plan, self.held_body = scene, plan, held_body or {}
+        self.span_of = np.full(plan.n_steps, -1)
+        for k, span in enumerate(plan.spans):
+            self.span_of[span.start:span.end] = k
+        self.offsets: dict[int, np.ndarray] = {}
+        self.rec = Recording()
+        self.solved = False
+
+    def on_step(self, step: Step) -> None:
+        rec, plan = self.rec, self.plan
+        self.solved |= bool(step.info["is_success"])
+        rec.obs.append(step.obs)
+        rec.states.append(step.state)
+        rec.actions.append(np.asarray(step.sent, dtype=np.float64))
+        k = int(self.span_of[step.index]) if step.index < plan.n_steps else -1
+        if k >= 0:
+            span = plan.spans[k]
+            pos, _ = self.scene.eef_pose()
+            arc = plan.target_pos[span.start:span.end + 1]
+            rec.max_deviation = max(rec.max_deviation, distance_to_polyline(pos, arc))
+            body = self.held_body.get(k)
+            if body is not None:
+                rec.max_offset_drift = max(rec.max_offset_drift, _offset_drift(self.scene, body, self.offsets, k))
 
 
 def run_plan(env, obs: dict, plan: Plan, source_actions: np.ndarray, config: ReplayConfig,
@@ -146,48 +211,12 @@ def run_plan(env, obs: dict, plan: Plan, source_actions: np.ndarray, config: Rep
     then succeeds only if the task is still solved at the end.
     """
     base = env.unwrapped
-    scene = base.scene
-    rec = Recording()
-    span_of = np.full(plan.n_steps, -1)
-    for k, span in enumerate(plan.spans):
-        span_of[span.start:span.end] = k
-    offsets: dict[int, np.ndarray] = {}
-    first_arc = plan.spans[0].start if plan.spans else plan.n_steps
-    info = {"is_success": False}
-    solved_at: int | None = None
-    for i in range(plan.n_steps + config.extra_steps + tail):
-        rec.obs.append(obs)
-        rec.states.append(base.get_state())
-        if i >= plan.n_steps:
-            action = np.zeros(7)
-            action[6] = plan.gripper[-1]
-        elif plan.source_step[i] >= 0 and (config.raw_prefix and i < first_arc):
-            action = np.asarray(source_actions[plan.source_step[i]], dtype=np.float64)
-        elif plan.source_step[i] >= 0:
-            pos, quat = scene.eef_pose()
-            action = source_goal_action(pos, quat_xyzw_to_mat(quat), plan.target_pos[i],
-                                        quat_xyzw_to_mat(plan.target_quat[i]), source_actions[plan.source_step[i]])
-        else:
-            pos, quat = scene.eef_pose()
-            action = tracking_action(pos, quat_xyzw_to_mat(quat), plan.target_pos[i + 1],
-                                     quat_xyzw_to_mat(plan.target_quat[i + 1]), plan.target_pos[i],
-                                     plan.gripper[i], config.lead)
-        rec.actions.append(action)
-        obs, _, _, _, info = base.step(action)
-        k = span_of[i] if i < plan.n_steps else -1
-        if k >= 0:
-            span = plan.spans[k]
-            pos, quat = scene.eef_pose()
-            arc = plan.target_pos[span.start:span.end + 1]
-            rec.max_deviation = max(rec.max_deviation, distance_to_polyline(pos, arc))
-            body = (held_body or {}).get(int(k))
-            if body is not None:
-                rec.max_offset_drift = max(rec.max_offset_drift, _offset_drift(scene, body, offsets, int(k)))
-        if solved_at is None and info["is_success"]:
-            solved_at = i
-        if solved_at is not None and i - solved_at >= tail:
-            break
-    rec.success = solved_at is not None and bool(info["is_success"])
+    recorder = PlanRecorder(base.scene, plan, held_body)
+    result = rollout(base, PlanFollower(base.scene, plan, source_actions, config), start=lambda _: (obs, {}),
+                     hooks=[recorder], stop=until_done(tail, truncation=False),
+                     max_steps=plan.n_steps + config.extra_steps + tail, dtype=None)
+    rec = recorder.rec
+    rec.success = recorder.solved and bool(result.info.get("is_success", False))
     return rec
 
 

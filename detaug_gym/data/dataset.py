@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from detaug_gym.rollout import Hook, Step, rollout
+
 OBSTACLE_PREFIX = "obstacle_"
 # LIBERO demo observation keys -> ours. Image keys are skipped.
 LIBERO_OBS_KEYS = {
@@ -300,35 +302,57 @@ class DatasetWriter:
             self._file = None
 
 
+class ActionSequence:
+    """A policy that plays recorded actions ``(T, 7)`` in order (the rollout loop's replay driver)."""
+
+    def __init__(self, actions: np.ndarray) -> None:
+        self.actions = np.asarray(actions)
+        self._next = 0
+
+    def reset(self, seed: int | None = None) -> None:
+        self._next = 0
+
+    def act(self, obs) -> np.ndarray:
+        action = self.actions[self._next]
+        self._next += 1
+        return action
+
+
+class StateLog(Hook):
+    """Keeps the simulator state before every step."""
+
+    needs_states = True
+
+    def __init__(self) -> None:
+        self.states: list[np.ndarray] = []
+
+    def on_step(self, step: Step) -> None:
+        self.states.append(step.state)
+
+
 def replay(env, demo: Demo, *, reset_seed: int | None = None) -> np.ndarray:
     """Re-execute the demo's actions (``executed_actions`` when it has them) from its recorded first state;
     returns the states before each action.
 
-    The env is reset (to the demo's task and init state when its attributes name them, so the scene and
-    any obstacle match), then the recorded first state is loaded and the actions are stepped. With a
-    deterministic env the result equals ``demo.states``. Stepping stops early if the episode ends, unless
-    the demo was recorded past its first success (``tail_steps``, ``collect --tail-steps``).
+    The env is restored to the demo's episode (its task, init state and seed, so the scene and any obstacle
+    match; ``reset_seed`` overrides the seed) and its recorded first state, then the actions are stepped
+    through the rollout loop. With a deterministic env the result equals ``demo.states``. Stepping stops
+    early if the episode ends, unless the demo was recorded past its first success (``tail_steps``,
+    ``collect --tail-steps``).
 
     Returns:
         ``(T, S)`` float64 states, ``T <= len(demo)``.
     """
     if demo.states.size == 0:
         raise ValueError(f"demo {demo.name or '?'} has no recorded states; cannot replay")
-    options = {}
-    if "task" in demo.attrs and hasattr(env.unwrapped, "tasks"):
-        options["task"] = int(demo.attrs["task"])
-    if "init_state" in demo.attrs and int(demo.attrs["init_state"]) >= 0:
-        options["init_state"] = int(demo.attrs["init_state"])
-    seed = reset_seed if reset_seed is not None else demo.attrs.get("seed")
-    env.reset(seed=None if seed is None else int(seed), options=options)
-    base = env.unwrapped
-    base.set_state(demo.states[0])
-    out = []
+    attrs = dict(demo.attrs) if reset_seed is None else {**demo.attrs, "seed": reset_seed}
     actions = demo.actions if demo.executed_actions is None else demo.executed_actions
     through_end = int(demo.attrs.get("tail_steps", 0)) > 0
-    for action in actions:
-        out.append(base.get_state())
-        _, _, terminated, truncated, _ = env.step(action)
-        if (terminated or truncated) and not through_end:
-            break
-    return np.asarray(out)
+    log = StateLog()
+
+    def stop(step: Step) -> bool:
+        return step.index + 1 >= len(actions) or (not through_end and (step.terminated or step.truncated))
+
+    base = env.unwrapped  # restored, not reset through the wrappers: step the env itself (no TimeLimit needed)
+    rollout(base, ActionSequence(actions), start=lambda e: e.restore(attrs, demo.states[0]), hooks=[log], stop=stop)
+    return np.asarray(log.states)

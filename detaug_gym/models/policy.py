@@ -97,8 +97,8 @@ class FlowPolicy:
         return self.checkpoint.labels
 
     # ------------------------------------------------------------------ protocol
-    def reset(self, seed: int | None = None) -> None:
-        """Clear the action queue and reseed the sampling noise."""
+    def reset(self, seed: int | None = None, context=None) -> None:
+        """Clear the action queue and reseed the sampling noise (``context``: the episode's, unused here)."""
         self._queue.clear()
         seed = self._default_seed if seed is None else seed
         if seed is None:

@@ -279,9 +279,19 @@ class AegisPolicy:
         self.policy = make_policy(base, suite=suite, **base_options)
         self.diagnostics: list[FilterStep] = []
 
-    def reset(self, seed: int | None = None) -> None:
-        self.policy.reset(seed=seed)
+    def reset(self, seed: int | None = None, context=None) -> None:
+        from detaug_gym.rollout import reset_policy
+
+        reset_policy(self.policy, seed, context)
         self.diagnostics = []
+
+    def episode_summary(self) -> dict:
+        """Filtered steps, how many the filter changed (interventions), infeasible QPs, and the wrapped
+        policy's own summary."""
+        inner = getattr(self.policy, "episode_summary", None)
+        return {"steps": len(self.diagnostics), "interventions": sum(d.active for d in self.diagnostics),
+                "infeasible": sum(not d.feasible for d in self.diagnostics),
+                **({"base": inner()} if callable(inner) else {})}
 
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         action, step = self.filter(self.policy.act(obs), obs)

@@ -2,9 +2,12 @@
 
 A policy drives one environment. The bench (the only rollout loop in the project) calls::
 
-    policy.reset(seed=seed)          # at the start of every episode
-    action = policy.act(obs)         # once per env step, obs is the env's Dict observation
+    policy.reset(seed=seed, context=context)   # at the start of every episode
+    action = policy.act(obs)                   # once per env step, obs is the env's Dict observation
+    policy.episode_summary()                   # optional: a JSON-able dict for the episode's record
 
+``context`` is the :class:`~detaug_gym.rollout.EpisodeContext` (env id, suite, level, task index, key and
+instruction); a policy may ignore it, and one whose ``reset`` takes only ``seed`` still works.
 ``act`` returns one action in env units: ``np.ndarray`` of shape ``(7,)``, float32, OSC_POSE delta in
 ``[-1, 1]`` plus the gripper command (-1 open, +1 close).
 
@@ -32,8 +35,9 @@ import numpy as np
 class Policy(Protocol):
     """What the bench needs from a policy."""
 
-    def reset(self, seed: int | None = None) -> None:
-        """Start a new episode; ``seed`` makes any sampling inside the policy reproducible."""
+    def reset(self, seed: int | None = None, context=None) -> None:
+        """Start a new episode; ``seed`` makes any sampling inside the policy reproducible, ``context``
+        (an :class:`~detaug_gym.rollout.EpisodeContext` or None) says which task it is."""
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         """Return the next action, shape ``(7,)`` float32, for the observation of one env."""

@@ -105,10 +105,15 @@ class CapePolicy(FlowPolicy):
     def prefix_steps(self) -> int:
         return self.action_steps
 
-    def reset(self, seed: int | None = None) -> None:
-        super().reset(seed)
+    def reset(self, seed: int | None = None, context=None) -> None:
+        super().reset(seed, context)
         self._previous = None
         self.diagnostics = []
+
+    def episode_summary(self) -> dict:
+        """Replans, and how many of them were guided (an obstacle in view) or sampled fresh from noise."""
+        return {"replans": len(self.diagnostics), "guided_replans": sum(d.guided for d in self.diagnostics),
+                "fresh_plans": sum(d.fresh for d in self.diagnostics)}
 
     def next_plan(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         cost = self.cost_function(obs)

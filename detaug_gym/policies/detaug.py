@@ -83,11 +83,18 @@ class DetAugPolicy(FlowPolicy):
         self._latched: np.ndarray | None = None
         self._rng = np.random.default_rng()
 
-    def reset(self, seed: int | None = None) -> None:
-        super().reset(seed)
+    def reset(self, seed: int | None = None, context=None) -> None:
+        super().reset(seed, context)
         self._rng = np.random.default_rng(seed)
         self._latched = None
         self.diagnostics = []
+
+    def episode_summary(self) -> dict:
+        """Replans, and the selected plans' predicted costs (mean, max, replans whose best plan still cost > 0)."""
+        best = [d.best_cost for d in self.diagnostics]
+        return {"replans": len(best), "selected_cost_mean": float(np.mean(best)) if best else 0.0,
+                "selected_cost_max": float(np.max(best)) if best else 0.0,
+                "replans_with_cost": int(sum(c > 0.0 for c in best))}
 
     # ------------------------------------------------------------------ selection
     def sample_labels(self, obs: Mapping[str, np.ndarray], k: int) -> np.ndarray:

@@ -22,7 +22,7 @@ class RandomPolicy:
         self._default_seed = seed
         self._rng = np.random.default_rng(seed)
 
-    def reset(self, seed: int | None = None) -> None:
+    def reset(self, seed: int | None = None, context=None) -> None:
         self._rng = np.random.default_rng(self._default_seed if seed is None else seed)
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:

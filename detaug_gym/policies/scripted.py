@@ -55,6 +55,7 @@ from detaug_gym.policies.scripted_tasks import (
     Recipe,
     Step,
     identify_task,
+    recipe_for,
 )
 
 POS_SCALE = 0.05  # m per unit action (OSC_POSE output_max)
@@ -129,8 +130,8 @@ class ScriptedExpert:
     """Privileged scripted expert for the SafeLibero suites and the Newton pick-and-place.
 
     Args:
-        task: recipe name (a key of :data:`~detaug_gym.policies.scripted_tasks.RECIPES`); default:
-            recognised from the first observation of each episode.
+        task: recipe name (a key of :data:`~detaug_gym.policies.scripted_tasks.RECIPES`); default: the
+            episode context's task (``reset(context=...)``), else recognised from the first observation.
         variation: scale of the per-demo variation (0 = the same nominal motion every episode).
         seed: default seed when ``reset`` gets none.
     """
@@ -147,7 +148,8 @@ class ScriptedExpert:
         self.reset(seed)
 
     # ------------------------------------------------------------------ policy protocol
-    def reset(self, seed: int | None = None) -> None:
+    def reset(self, seed: int | None = None, context=None) -> None:
+        self._context_recipe = None if context is None else recipe_for(context.suite, context.task_key)
         self._rng = np.random.default_rng(self._default_seed if seed is None else seed)
         self.style = DemoStyle.sample(self._rng, self.variation)
         self.recipe: Recipe | None = None
@@ -164,7 +166,7 @@ class ScriptedExpert:
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         self._obs = obs
         if self._script is None:
-            self.recipe = RECIPES[self.task or identify_task(obs)]
+            self.recipe = RECIPES[self.task or self._context_recipe or identify_task(obs)]
             self.style = replace(self.style, speed=self.style.speed * self.recipe.tempo)
             self._yaw = self._current_yaw()
             self._home = self._eef()

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from detaug_gym.envs.suites import SUITES
+
 
 @dataclass(frozen=True)
 class GraspSpec:
@@ -183,8 +185,18 @@ RECIPES: dict[str, Recipe] = {
     "newton_cube": _single("newton_cube", "cube", "disc"),
 }
 
-OBJECT_SUITE = ("orange_juice", "chocolate_pudding", "milk", "bbq_sauce")
-LONG_SUITE = ("soup_cheese_basket", "soup_sauce_basket", "mugs_on_plates", "mug_plate_pudding")
+# Tasks whose recipe is not named by their key: every Spatial task moves a black bowl onto the same plate
+# (the tasks differ in where the bowl starts), and Goal's plate stands elsewhere than Spatial's.
+RECIPE_OF_TASK = {("goal", "bowl_on_plate"): "goal_bowl_on_plate"} | {
+    ("spatial", task.key): "bowl_on_plate" for task in SUITES["spatial"].tasks}
+
+
+def recipe_for(suite: str, task_key: str) -> str:
+    """The recipe name of a suite's task (its key in the suite registry); ``ValueError`` if there is none."""
+    name = RECIPE_OF_TASK.get((suite, task_key), task_key)
+    if name not in RECIPES:
+        raise ValueError(f"no scripted recipe for {suite} task {task_key!r}; recipes: {', '.join(sorted(RECIPES))}")
+    return name
 
 
 def _quat_close(q: np.ndarray, ref: tuple[float, float, float, float], tol: float = 0.05) -> bool:
@@ -209,10 +221,10 @@ def identify_task(obs: dict[str, np.ndarray]) -> str:
     if task_id.size == 1:
         return "newton_cube"
     if poses.shape[0] == 4:
-        return LONG_SUITE[index]
+        return SUITES["long"].tasks[index].key
     obj, target = poses[0], poses[1]
     if obj[2] < 0.3:
-        return OBJECT_SUITE[index]
+        return SUITES["object"].tasks[index].key
     if obj[2] < 0.8:
         raise ValueError(f"no scripted recipe for a scene with objects at z = {obj[2]:.3f}")
     if _quat_close(target[3:], (-0.7071, 0.0, 0.7071, 0.0)):
