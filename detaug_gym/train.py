@@ -21,14 +21,10 @@ Load the result with ``FlowPolicy.load(out)``.
 
 from __future__ import annotations
 
-import argparse
-import ast
 import csv
 import dataclasses
-import inspect
 import math
 import sys
-import textwrap
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +33,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from detaug_gym.config import parse_config
 from detaug_gym.models.checkpoint import (
     METHODS,
     TRAIN_STATE,
@@ -119,28 +116,10 @@ class TrainConfig:
 
 
 # ---------------------------------------------------------------------------------------------- CLI
-def _field_docs(cls: type) -> dict[str, str]:
-    """Attribute docstrings (the string literal under each field), for --help."""
-    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
-    docs = {}
-    for node, nxt in zip(body, body[1:]):
-        if isinstance(node, ast.AnnAssign) and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant):
-            docs[node.target.id] = str(nxt.value.value)
-    return docs
-
-
 def parse_args(argv: list[str] | None = None) -> TrainConfig:
-    parser = argparse.ArgumentParser(prog="python -m detaug_gym.train", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    docs, types = _field_docs(TrainConfig), {"int": int, "float": float, "str": str}
-    for f in dataclasses.fields(TrainConfig):
-        flag = "--" + f.name.replace("_", "-")
-        if f.type == "bool":
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default, help=docs[f.name])
-        else:
-            parser.add_argument(flag, type=types[f.type], default=f.default, help=docs[f.name],
-                                choices=METHODS if f.name == "method" else None)
-    return TrainConfig(**vars(parser.parse_args(argv)))
+    """``TrainConfig`` from the command line: one ``--flag`` per field, help from the field docstrings."""
+    return parse_config(TrainConfig, argv, prog="python -m detaug_gym.train", description=__doc__,
+                        choices={"method": METHODS})
 
 
 def check_config(cfg: TrainConfig) -> None:
