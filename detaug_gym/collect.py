@@ -25,7 +25,6 @@ training:
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from dataclasses import dataclass
@@ -34,6 +33,7 @@ import gymnasium as gym
 import numpy as np
 
 import detaug_gym  # noqa: F401  (registers the env ids)
+from detaug_gym.config import build_parser, config_from_namespace
 from detaug_gym.data.dataset import OBSTACLE_PREFIX, DatasetWriter, Demo
 from detaug_gym.policies import make_policy
 from detaug_gym.rollout import Hook, Step, rollout, until_done
@@ -61,7 +61,8 @@ class CollectArgs:
     controller: str | None = None
     """Env controller (``fast`` / ``stock``); default: the env's default."""
     action_noise: float = 0.0
-    """Stationary std of the position disturbance added to the executed action (0: clean demos)."""
+    """Std of a correlated disturbance on the executed position action, 1 = 5 cm (DART-style recovery demos;
+    0: clean)."""
     noise_tau: float = 10.0
     """Correlation time of the disturbance, in env steps."""
     noise_duty: float = 1.0
@@ -70,6 +71,18 @@ class CollectArgs:
     """Mean length of a disturbance burst, in env steps (with ``noise_duty < 1``)."""
     tail_steps: int = 0
     """Env steps recorded after the first success (the expert lets go and retreats); 0 ends the demo there."""
+
+    def __post_init__(self) -> None:
+        if self.demos < 1:
+            raise ValueError(f"--demos must be >= 1, got {self.demos}")
+        if self.tail_steps < 0:
+            raise ValueError(f"--tail-steps must be >= 0, got {self.tail_steps}")
+        if self.max_attempts is not None and self.max_attempts < 1:
+            raise ValueError(f"--max-attempts must be >= 1, got {self.max_attempts}")
+        try:  # ActionNoise is the one place that validates the noise options
+            ActionNoise(self.action_noise, self.noise_tau, self.noise_duty, self.noise_burst)
+        except ValueError as exc:
+            raise ValueError(f"--action-noise / --noise-tau / --noise-duty / --noise-burst: {exc}") from None
 
 
 @dataclass
@@ -289,40 +302,11 @@ def format_table(stats: list[TaskStats]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m detaug_gym.collect", description=__doc__.split("\n")[0])
-    parser.add_argument("--env", required=True, help="env id, e.g. SafeLibero-Spatial-Free-v0")
-    parser.add_argument("--out", required=True, help="output HDF5 file (appended to / resumed if present)")
-    parser.add_argument("--task", default="all", help="task index or 'all' (default)")
-    parser.add_argument("--demos", type=int, default=50, help="demos kept per task (default 50)")
-    parser.add_argument("--policy", default="scripted", help="registered policy (default scripted)")
-    parser.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
-    parser.add_argument("--max-attempts", type=int, default=None, help="episodes per task (default 2*demos)")
-    parser.add_argument("--controller", default=None, help="env controller: fast or stock")
-    parser.add_argument("--action-noise", type=float, default=0.0,
-                        help="std of a correlated disturbance on the executed position action, 1 = 5 cm "
-                             "(DART-style recovery demos; default 0: clean)")
-    parser.add_argument("--noise-tau", type=float, default=10.0,
-                        help="correlation time of --action-noise in env steps (default 10)")
-    parser.add_argument("--noise-duty", type=float, default=1.0,
-                        help="fraction of steps --action-noise acts, in bursts (default 1: always)")
-    parser.add_argument("--noise-burst", type=float, default=15.0,
-                        help="mean burst length in env steps with --noise-duty below 1 (default 15)")
-    parser.add_argument("--tail-steps", type=int, default=0,
-                        help="steps recorded after the first success, so the demos show the expert letting go "
-                             "and retreating (default 0: a demo ends at its first success)")
-    ns = parser.parse_args(argv)
-    if ns.demos < 1:
-        parser.error("--demos must be >= 1")
-    if ns.tail_steps < 0:
-        parser.error(f"--tail-steps must be >= 0, got {ns.tail_steps}")
+    parser = build_parser(CollectArgs, prog="python -m detaug_gym.collect", description=__doc__)
     try:
-        ActionNoise(ns.action_noise, ns.noise_tau, ns.noise_duty, ns.noise_burst)  # the one place that validates
+        args = config_from_namespace(CollectArgs, parser.parse_args(argv))
     except ValueError as exc:
-        parser.error(f"--action-noise / --noise-tau / --noise-duty / --noise-burst: {exc}")
-    args = CollectArgs(env=ns.env, out=ns.out, task=ns.task, demos=ns.demos, policy=ns.policy, seed=ns.seed,
-                       max_attempts=ns.max_attempts, controller=ns.controller,
-                       action_noise=ns.action_noise, noise_tau=ns.noise_tau, noise_duty=ns.noise_duty,
-                       noise_burst=ns.noise_burst, tail_steps=ns.tail_steps)
+        parser.error(str(exc))
     start = time.perf_counter()
     stats = collect(args)
     print(format_table(stats))
