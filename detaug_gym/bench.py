@@ -7,7 +7,10 @@ Examples (copy-paste)::
 
     # the paper's comparison on every suite and level, 10 episodes per cell, 2 worker processes
     python -m detaug_gym.bench --methods detaug cape aegis demogen --suites spatial object goal long \\
-        --levels 1 2 --episodes 10 --seed 0 --workers 2 --out results/table1
+        --levels 1 2 --episodes 10 --seeds 0 1 2 --workers 2 --out results/table1
+
+    # videos: the first episode of every (method, cell) and every failed one, as mp4 beside the JSONL
+    python -m detaug_gym.bench --seeds 0 1 --video 1 --video-failures
 
     # obstacle-free reference runs
     python -m detaug_gym.bench --methods scripted --levels free --episodes 20 --out results/free
@@ -19,18 +22,22 @@ Examples (copy-paste)::
     python -m detaug_gym.bench --methods scripted --env-kwargs max_episode_steps=100 controller=stock
 
 Every method sees the same episodes: episode ``i`` of a (suite, level) cell uses task ``i mod #tasks``,
-and the same seed (hence the same LIBERO init state and the same obstacle) for every method. Each
-finished episode is appended to ``<out>/episodes.jsonl`` at once; rerunning the same command skips the
-episodes already there, so an interrupted run loses nothing. Tables (Markdown, CSV) and a bar chart are
-rewritten from all lines at the end.
+and the same seed (hence the same LIBERO init state and the same obstacle) for every method; each run seed
+(``--seeds``) is its own set of episodes. Each finished episode is appended to ``<out>/episodes.jsonl`` at
+once; rerunning the same command skips the episodes already there (an errored episode is run again and its
+new line supersedes the old one), so an interrupted run loses nothing; a line torn by a crash is dropped.
+``<out>/run.json`` records the command, config, package version, git revision and checkpoint hashes; a rerun
+whose env options or checkpoints differ is refused. Tables (Markdown, CSV: Clean / Total / Avoid with 95 %
+Wilson intervals, mean ± std over seeds, errors, ETS), ``eval_info.json`` (LeRobot's schema) and a bar chart
+are rewritten at the end from the lines of the asked cells, seeds and episodes (any method in the folder).
 """
 
 from __future__ import annotations
 
-import argparse
 import ast
 import json
 import os
+import re
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
@@ -38,13 +45,16 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from detaug_gym.config import add_dataclass_arguments
+from detaug_gym.config import build_parser as config_parser
+from detaug_gym.config import config_from_namespace
 from detaug_gym.envs.suites import SUITES, get_suite, parse_level
-from detaug_gym.report import read_records, write_report
-from detaug_gym.rollout import EpisodeKey, run_episode
+from detaug_gym.manifest import check_manifest, method_checkpoints, write_manifest
+from detaug_gym.report import read_records, record_key, repair_log, write_report
+from detaug_gym.rollout import EpisodeKey, EpisodeRecord, run_episode
 from detaug_gym.seeds import bench_episode_seed
 
 DEFAULT_METHODS = ("detaug", "base", "scripted")
+LOG = "episodes.jsonl"
 
 
 @dataclass
@@ -58,9 +68,9 @@ class BenchConfig:
     levels: list[str] = field(default_factory=lambda: ["1", "2"])
     """Levels: 1 2 free (a suite without a level, like newton's 1, skips it)."""
     episodes: int = 4
-    """Episodes per (method, suite, level) cell."""
-    seed: int = 0
-    """Run seed; episode seeds derive from it (detaug_gym.seeds.bench_episode_seed)."""
+    """Episodes per (method, suite, level) cell and run seed."""
+    seeds: list[int] = field(default_factory=lambda: [0])
+    """Run seeds, each its own set of episodes (episode seeds derive from it); tables show mean ± std over them."""
     workers: int = 1
     """Parallel worker processes."""
     threads: int = 1
@@ -69,6 +79,25 @@ class BenchConfig:
     """Output folder (rerun the same command to resume)."""
     env_kwargs: list[str] = field(default_factory=list)
     """gym.make kwargs for every cell, key=value (max_episode_steps=100 controller=stock)."""
+    video: int = 0
+    """Render the first N episodes of every (method, cell, seed) as mp4 under <out>/videos (needs MUJOCO_GL=egl)."""
+    video_failures: bool = False
+    """Also keep a video of every failed episode (renders every episode)."""
+
+    def __post_init__(self) -> None:
+        for name in ("episodes", "workers", "threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name} must be >= 1, got {getattr(self, name)}")
+        if self.video < 0:
+            raise ValueError(f"--video must be >= 0, got {self.video}")
+        for name in ("methods", "suites", "levels", "seeds"):
+            if not getattr(self, name):
+                raise ValueError(f"--{name} needs at least one value")
+            setattr(self, name, list(dict.fromkeys(getattr(self, name))))  # a duplicate would count twice
+
+    @property
+    def renders(self) -> bool:
+        return self.video > 0 or self.video_failures
 
 
 @dataclass(frozen=True)
@@ -76,20 +105,24 @@ class Job:
     key: EpisodeKey
     suite: str
     level: str
+    run_seed: int = 0
     threads: int = 1
     env_kwargs: tuple[tuple[str, object], ...] = ()
+    video: str | None = None  # mp4 path to write
+    video_failures: bool = False  # render, keep the video only if the episode fails (unless ``keep_video``)
+    keep_video: bool = False
 
 
 def parse_levels(values: list[str]) -> list[str]:
     try:
-        return [parse_level(v) for v in values]
+        return list(dict.fromkeys(parse_level(v) for v in values))
     except ValueError as exc:
         raise SystemExit(f"{exc}") from None
 
 
 def parse_suites(values: list[str]) -> list[str]:
     try:
-        return [get_suite(v).name for v in values]
+        return list(dict.fromkeys(get_suite(v).name for v in values))
     except ValueError as exc:
         raise SystemExit(f"{exc}") from None
 
@@ -125,21 +158,35 @@ def parse_env_kwargs(items: list[str]) -> dict:
     return out
 
 
-def check_methods(methods: list[str], suite: str = "spatial") -> None:
-    """Fail before any episode runs on an unknown method or on options its policy rejects."""
+def check_methods(methods: list[str], suites: list[str]) -> None:
+    """Fail before any episode runs, with one line per problem: an unknown method, options its policy rejects,
+    or a checkpoint missing for one of the suites."""
     from detaug_gym.policies import available_policies, make_policy
 
-    missing = [m for m in methods if parse_method(m)[0] not in available_policies()]
-    if missing:
-        raise SystemExit(f"unknown method(s) {', '.join(missing)}; registered policies: "
-                         f"{', '.join(available_policies())} (options go after a colon: detaug:k=8)")
+    problems = []
     for spec in methods:
         name, options = parse_method(spec)
-        if options:
+        if name not in available_policies():
+            problems.append(f"unknown method {spec!r}; registered policies: {', '.join(available_policies())} "
+                            "(options go after a colon: detaug:k=8)")
+            continue
+        for suite in suites:
             try:
-                make_policy(name, suite=suite, **options)
+                missing = [p for p in method_checkpoints(name, options, suite) if not (p / "config.json").exists()]
             except (TypeError, ValueError) as exc:
-                raise SystemExit(f"method {spec!r}: {exc}") from exc
+                problems.append(f"method {spec!r}: {exc}")
+                break
+            if missing:
+                problems.append(f"method {spec!r} on suite {suite!r}: no checkpoint at {missing[0]} (the zoo has "
+                                f"it only for the suites whose cards are in policies/; train it with "
+                                f"python -m detaug_gym.train --out {missing[0]})")
+        if options and not problems:
+            try:
+                make_policy(name, suite=suites[0], **options)
+            except (TypeError, ValueError, KeyError) as exc:
+                problems.append(f"method {spec!r}: {exc}")
+    if problems:
+        raise SystemExit("cannot run:\n  " + "\n  ".join(problems))
 
 
 def check_env_kwargs(cells: list[tuple[str, str]], env_kwargs: dict) -> None:
@@ -162,19 +209,26 @@ def plan_cells(suites: list[str], levels: list[str]) -> list[tuple[str, str]]:
     return [(s, lv) for s in suites for lv in levels if lv in SUITES[s].levels]
 
 
-def plan_jobs(methods, suites, levels, episodes, seed, env_kwargs: dict | None = None) -> list[Job]:
+def plan_jobs(methods, suites, levels, episodes, seeds, env_kwargs: dict | None = None) -> list[Job]:
+    """Every (method, cell, run seed, episode) job; ``seeds`` is one run seed or a list of them."""
     jobs = []
     kwargs = tuple(sorted((env_kwargs or {}).items()))
-    for suite, level in plan_cells(suites, levels):
-        spec = SUITES[suite]
-        n_tasks = len(spec.tasks_for(level))
-        for method in methods:
-            for ep in range(episodes):
-                key = EpisodeKey(method, spec.env_id(level), ep % n_tasks, ep,
-                                 bench_episode_seed(seed, suite, level, ep))
-                jobs.append(Job(key, suite, level, env_kwargs=kwargs))
+    for run_seed in ([seeds] if isinstance(seeds, int) else seeds):
+        for suite, level in plan_cells(suites, levels):
+            spec = SUITES[suite]
+            n_tasks = len(spec.tasks_for(level))
+            for method in methods:
+                for ep in range(episodes):
+                    key = EpisodeKey(method, spec.env_id(level), ep % n_tasks, ep,
+                                     bench_episode_seed(run_seed, suite, level, ep))
+                    jobs.append(Job(key, suite, level, run_seed, env_kwargs=kwargs))
     # Group by env so a worker reuses its compiled scenes, and by method so policies load once.
-    return sorted(jobs, key=lambda j: (j.key.env_id, j.key.method, j.key.episode))
+    return sorted(jobs, key=lambda j: (j.key.env_id, j.key.method, j.run_seed, j.key.episode))
+
+
+def video_path(out: Path, job: Job) -> Path:
+    method = re.sub(r"[^A-Za-z0-9_.-]+", "_", job.key.method)
+    return out / "videos" / method / job.key.env_id / f"seed{job.run_seed}_ep{job.key.episode}.mp4"
 
 
 _CACHE: dict = {}
@@ -189,29 +243,56 @@ def _run_job(job: Job) -> dict:
     from detaug_gym.policies import make_policy
 
     torch.set_num_threads(job.threads)  # torch's worker threads stall when several processes share the cores
-    env_key, pol_key = ("env", job.key.env_id, job.env_kwargs), ("policy", job.key.method, job.suite)
+    render = job.video is not None
+    env_key = ("env", job.key.env_id, job.env_kwargs, render)
+    pol_key = ("policy", job.key.method, job.suite)
     try:
         if env_key not in _CACHE:
-            _CACHE[env_key] = gym.make(job.key.env_id, **dict(job.env_kwargs))
+            _CACHE[env_key] = gym.make(job.key.env_id, **dict(job.env_kwargs),
+                                       **({"render_mode": "rgb_array"} if render else {}))
         if pol_key not in _CACHE:
             name, options = parse_method(job.key.method)
             _CACHE[pol_key] = make_policy(name, suite=job.suite, **options)
     except Exception as exc:  # construction errors are recorded like episode errors
-        from detaug_gym.rollout import EpisodeRecord
-
         rec = EpisodeRecord(job.key.method, job.key.env_id, job.suite, job.level, job.key.task,
-                            job.key.episode, job.key.seed, error=f"{type(exc).__name__}: {exc}")
+                            job.key.episode, job.key.seed, run_seed=job.run_seed,
+                            error=f"{type(exc).__name__}: {exc}")
         return rec.to_json()
-    record = run_episode(_CACHE[env_key], _CACHE[pol_key], job.key, job.suite, job.level)
+    hooks = []
+    if render:
+        from detaug_gym.video import VideoRecorder
+
+        hooks.append(VideoRecorder(job.video, label=job.key.method))
+    record = run_episode(_CACHE[env_key], _CACHE[pol_key], job.key, job.suite, job.level, hooks=hooks,
+                         run_seed=job.run_seed)
+    if render and hooks[0].frames and (job.keep_video or not record.success):
+        record.video = str(hooks[0].save())
     if record.termination == "error":
         _CACHE.pop(env_key).close()  # a broken simulator is rebuilt for the next episode
     return record.to_json()
 
 
+def close_cached() -> None:
+    """Close the envs this process cached (their renderers and simulators)."""
+    for key in [k for k in _CACHE if k[0] == "env"]:
+        _CACHE.pop(key).close()
+
+
+def prepare_out(out: Path) -> Path:
+    """Create ``out`` (a clear error when it is a file or cannot be created); returns the JSONL path."""
+    if out.exists() and not out.is_dir():
+        raise SystemExit(f"--out {out} is a file; give a folder (rerun the same command to resume)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SystemExit(f"--out {out}: cannot create the folder ({exc.strerror})") from None
+    return out / LOG
+
+
 def run(cfg: BenchConfig) -> str:
     """Run the episodes of ``cfg`` not yet in ``<out>/episodes.jsonl``, then rewrite the tables; returns the
     Markdown table."""
-    methods = [m if ":" in m else m.lower() for m in cfg.methods]
+    methods = list(dict.fromkeys(m if ":" in m else m.lower() for m in cfg.methods))
     suites, levels = parse_suites(cfg.suites), parse_levels(cfg.levels)
     cells = plan_cells(suites, levels)
     if not cells:
@@ -219,19 +300,34 @@ def run(cfg: BenchConfig) -> str:
                          f"{', '.join(levels)} (their levels: "
                          + "; ".join(f"{s}: {', '.join(SUITES[s].levels)}" for s in suites) + ")")
     env_kwargs = parse_env_kwargs(cfg.env_kwargs)
-    check_methods(methods, suites[0])
+    check_methods(methods, suites)
     check_env_kwargs(cells, env_kwargs)
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
-    log = out / "episodes.jsonl"
-    done = {(r["method"], r["env_id"], r["task"], r["episode"], r["seed"]) for r in read_records(log)}
-    jobs = [replace(j, threads=cfg.threads)
-            for j in plan_jobs(methods, suites, levels, cfg.episodes, cfg.seed, env_kwargs)
-            if j.key.as_tuple() not in done]
-    print(f"{len(done)} episodes already in {log}; {len(jobs)} to run")
+    log = prepare_out(out)
+    check_manifest(out, cfg, methods, suites)
+    dropped = repair_log(log)
+    if dropped:
+        print(f"repaired {log}: dropped {dropped} torn line(s) (a run was killed mid-write); those episodes rerun")
+    records = read_records(log)
+    done = {record_key(r) for r in records if r.get("termination") != "error"}
+    retried = sum(r.get("termination") == "error" for r in records)
+    planned = plan_jobs(methods, suites, levels, cfg.episodes, cfg.seeds, env_kwargs)
+    jobs = []
+    for job in planned:
+        if job.key.as_tuple() in done:
+            continue
+        first = job.key.episode < cfg.video
+        if first or cfg.video_failures:
+            job = replace(job, video=str(video_path(out, job)), keep_video=first, video_failures=cfg.video_failures)
+        jobs.append(replace(job, threads=cfg.threads))
+    write_manifest(out, cfg, methods, suites)
+    print(f"{len(planned) - len(jobs)} of {len(planned)} episodes already in {log}; {len(jobs)} to run"
+          + (f" (errored ones are retried: {retried} in the log)" if retried else ""))
     with open(log, "a") as f, tqdm(total=len(jobs), desc="episodes", unit="ep") as bar:
 
         def record(result: dict) -> None:
+            if result.get("video"):
+                result["video"] = os.path.relpath(result["video"], out)  # the folder stays movable
             f.write(json.dumps(result) + "\n")
             f.flush()
             os.fsync(f.fileno())
@@ -239,32 +335,40 @@ def run(cfg: BenchConfig) -> str:
             bar.update()
 
         if cfg.workers <= 1:
-            for job in jobs:
-                record(_run_job(job))
+            try:
+                for job in jobs:
+                    record(_run_job(job))
+            finally:
+                close_cached()
         else:
             with ProcessPoolExecutor(cfg.workers, mp_context=get_context("spawn")) as pool:
                 for result in pool.map(_run_job, jobs, chunksize=1):
                     record(result)
-    text = write_report(read_records(log), out)
+    wanted = {j.key.as_tuple()[1:] for j in planned}  # any method's lines of the planned episodes
+    text = write_report([r for r in read_records(log) if record_key(r)[1:] in wanted], out)
     print(text)
-    print(f"wrote {out}/table.md, table.csv, levels.csv, results.png")
+    print(f"wrote {out}/table.md, table.csv, levels.csv, tasks.csv, eval_info.json, results.png")
     return text
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m detaug_gym.bench", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_dataclass_arguments(p, BenchConfig)
-    return p
+def build_parser():
+    return config_parser(BenchConfig, prog="python -m detaug_gym.bench", description=__doc__)
 
 
 def parse_config(argv: list[str] | None = None) -> BenchConfig:
-    """The :class:`BenchConfig` of a command line."""
-    return BenchConfig(**vars(build_parser().parse_args(argv)))
+    """The :class:`BenchConfig` of a command line; a bad value exits with the parser's message."""
+    parser = build_parser()
+    try:
+        return config_from_namespace(BenchConfig, parser.parse_args(argv))
+    except ValueError as exc:
+        parser.error(str(exc))
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(parse_config(argv))
+    cfg = parse_config(argv)
+    if cfg.renders:  # headless rendering; must be chosen before MuJoCo is imported (here and in workers)
+        os.environ.setdefault("MUJOCO_GL", "egl")
+    run(cfg)
 
 
 if __name__ == "__main__":

@@ -1,10 +1,18 @@
-"""Tables and plots computed from the bench's episode lines (the paper's Table I layout)."""
+"""Tables, plots and a LeRobot-style ``eval_info.json`` computed from the bench's episode lines (the paper's
+Table I layout), with sample sizes and uncertainty beside every rate.
+
+Every episode of a cell counts, errored ones included: an error is a failure in Clean and Total, and counts in
+Avoid by whether the obstacle had been hit before the error. Rates come with a 95 % Wilson interval over the
+cell's episodes; with several run seeds (``--seeds``) the tables also give mean ± std over the seeds.
+"""
 
 from __future__ import annotations
 
 import csv
 import json
+import math
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -13,49 +21,146 @@ from detaug_gym.envs.suites import SUITES
 
 SUITE_ORDER = tuple(SUITES)
 METRICS = ("Clean", "Total", "Avoid", "Timeout")
+Z95 = 1.959963984540054
+CAPTION = ("Clean = success without collision, Total = success irrespective of collision, Avoid = 1 - collision "
+           "rate, Timeout = episodes that hit the step limit, ETS = mean episode steps. Every episode counts: an "
+           "episode that errored is a failure in Clean and Total and counts in Avoid by whether the obstacle had "
+           "been hit before the error. 95 % Wilson intervals over the episodes; with several run seeds, "
+           "mean ± std over the seeds.")
 
 
 def read_records(path: Path) -> list[dict]:
-    """All episode lines of a JSONL file (a truncated last line, from a killed run, is skipped)."""
+    """All episode lines of a JSONL file; a later line for the same episode supersedes an earlier one (a
+    retried error), and a line that does not parse (torn by a crash; :func:`repair_log` removes it) is skipped."""
     if not path.exists():
         return []
-    records = []
+    latest: dict[tuple, dict] = {}
     for line in path.read_text().splitlines():
         try:
-            records.append(json.loads(line))
+            record = json.loads(line)
         except json.JSONDecodeError:
             continue
-    return records
+        latest[record_key(record)] = record
+    return list(latest.values())
 
 
-def cell_metrics(records: list[dict]) -> dict[str, float]:
-    """Clean (success without collision), Total (success), Avoid (1 - collision rate), Timeout, in %."""
-    ok = [r for r in records if r["termination"] != "error"]
-    if not ok:
-        return {m: float("nan") for m in METRICS} | {"n": 0, "errors": len(records)}
-    success = np.array([r["success"] for r in ok], dtype=float)
-    collision = np.array([r["collision"] for r in ok], dtype=float)
-    has_obstacle = ok[0]["level"] != "Free"
-    return {
-        "Clean": 100 * float(np.mean(success * (1 - collision))),
-        "Total": 100 * float(np.mean(success)),
-        "Avoid": 100 * float(1 - np.mean(collision)) if has_obstacle else float("nan"),
-        "Timeout": 100 * float(np.mean([r["termination"] == "timeout" for r in ok])),
-        "n": len(ok),
-        "errors": len(records) - len(ok),
-    }
+def record_key(record: dict) -> tuple:
+    """What identifies an episode line: (method, env id, task, episode, episode seed)."""
+    return (record.get("method"), record.get("env_id"), record.get("task"), record.get("episode"), record.get("seed"))
 
 
-def summarise(records: list[dict]) -> dict[tuple[str, str, str], dict[str, float]]:
-    """Metrics per (method, suite, level)."""
+def repair_log(path: Path) -> int:
+    """Drop lines of ``path`` that do not parse as JSON (a line torn by a crash mid-write) and make the file end
+    with a newline; returns how many lines were dropped. The file is rewritten atomically."""
+    if not path.exists():
+        return 0
+    text = path.read_text()
+    lines = text.splitlines()
+    good = []
+    for line in lines:
+        try:
+            json.loads(line)
+            good.append(line)
+        except json.JSONDecodeError:
+            continue
+    dropped = len(lines) - len(good)
+    if dropped or (text and not text.endswith("\n")):
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text("".join(line + "\n" for line in good))
+        tmp.replace(path)
+    return dropped
+
+
+def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """95 % Wilson score interval (percent) of ``successes`` out of ``n``; (nan, nan) for n = 0."""
+    if n == 0:
+        return float("nan"), float("nan")
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return 100 * max(0.0, centre - half), 100 * min(1.0, centre + half)
+
+
+@dataclass
+class Cell:
+    """Counts of one (method, suite, level) cell, and the same per run seed."""
+
+    n: int
+    clean: int
+    success: int
+    collision: int
+    timeout: int
+    errors: int
+    steps: float
+    has_obstacle: bool
+    per_seed: dict[int, Cell] | None = None
+
+    def rate(self, metric: str) -> float:
+        """Percent of the cell's episodes (NaN when undefined: no episode, or Avoid without an obstacle)."""
+        if self.n == 0 or (metric == "Avoid" and not self.has_obstacle):
+            return float("nan")
+        count = {"Clean": self.clean, "Total": self.success, "Avoid": self.n - self.collision,
+                 "Timeout": self.timeout, "Errors": self.errors}[metric]
+        return 100.0 * count / self.n
+
+    def interval(self, metric: str) -> tuple[float, float]:
+        if metric == "Avoid" and not self.has_obstacle:
+            return float("nan"), float("nan")
+        count = {"Clean": self.clean, "Total": self.success, "Avoid": self.n - self.collision,
+                 "Timeout": self.timeout}[metric]
+        return wilson(count, self.n)
+
+    def seed_std(self, metric: str) -> float:
+        """Std over run seeds of the rate (NaN with fewer than two seeds)."""
+        if not self.per_seed or len(self.per_seed) < 2:
+            return float("nan")
+        return float(np.std([c.rate(metric) for c in self.per_seed.values()], ddof=1))
+
+
+def _count(records: list[dict]) -> Cell:
+    n = len(records)
+    success = [bool(r.get("success")) and r.get("termination") != "error" for r in records]
+    collision = [bool(r.get("collision")) for r in records]
+    return Cell(
+        n=n,
+        clean=sum(s and not c for s, c in zip(success, collision)),
+        success=sum(success),
+        collision=sum(collision),
+        timeout=sum(r.get("termination") == "timeout" for r in records),
+        errors=sum(r.get("termination") == "error" for r in records),
+        steps=float(np.mean([r.get("steps", 0) for r in records])) if records else float("nan"),
+        has_obstacle=bool(records) and records[0].get("level") != "Free",
+    )
+
+
+def cell_stats(records: list[dict]) -> Cell:
+    """The :class:`Cell` of one group of episode lines (its ``per_seed`` split by ``run_seed``)."""
+    cell = _count(records)
+    by_seed: dict[int, list[dict]] = defaultdict(list)
+    for r in records:
+        by_seed[int(r.get("run_seed", 0))].append(r)
+    cell.per_seed = {seed: _count(rs) for seed, rs in sorted(by_seed.items())}
+    return cell
+
+
+def summarise(records: list[dict]) -> dict[tuple[str, str, str], Cell]:
+    """A :class:`Cell` per (method, suite, level)."""
     groups: dict[tuple[str, str, str], list[dict]] = defaultdict(list)
     for r in records:
         groups[(r["method"], r["suite"], r["level"])].append(r)
-    return {key: cell_metrics(rs) for key, rs in groups.items()}
+    return {key: cell_stats(rs) for key, rs in groups.items()}
 
 
 def _fmt(value: float) -> str:
     return "-" if value != value else f"{value:.1f}"
+
+
+def _fmt_std(value: float, std: float) -> str:
+    return _fmt(value) if std != std or value != value else f"{value:.1f} ± {std:.1f}"
+
+
+def _ci(lo: float, hi: float) -> str:
+    return "-" if lo != lo else f"[{lo:.0f}, {hi:.0f}]"
 
 
 def _mean(values: list[float]) -> float:
@@ -64,51 +169,71 @@ def _mean(values: list[float]) -> float:
     return float(np.mean(defined)) if defined else float("nan")
 
 
+def _group_rate(cells: list[Cell], metric: str) -> tuple[float, float]:
+    """Mean over ``cells`` (levels or suites) of the rate, and its std over run seeds (each seed's mean)."""
+    value = _mean([c.rate(metric) for c in cells])
+    seeds = sorted({s for c in cells for s in (c.per_seed or {})})
+    if len(seeds) < 2:
+        return value, float("nan")
+    per_seed = [_mean([c.per_seed[s].rate(metric) for c in cells if s in (c.per_seed or {})]) for s in seeds]
+    defined = [v for v in per_seed if v == v]
+    return value, float(np.std(defined, ddof=1)) if len(defined) > 1 else float("nan")
+
+
 def table_rows(summary) -> tuple[list[str], list[list[str]]]:
-    """Rows of the Table I layout: per method, per suite Clean/Total/Avoid averaged over levels, then Average."""
+    """Rows of the Table I layout: per method, per suite Clean/Total/Avoid averaged over levels, then Average,
+    the errored episodes and the episode count."""
     methods = sorted({k[0] for k in summary})
     suites = [s for s in SUITE_ORDER if any(k[1] == s for k in summary)]
     header = ["Method"] + [f"{s.capitalize()} {m}" for s in suites for m in METRICS[:3]]
-    header += [f"Average {m}" for m in METRICS]
+    header += [f"Average {m}" for m in METRICS] + ["Errors", "Episodes"]
     rows = []
     for method in methods:
-        row, per_suite = [method], []
+        row, all_cells = [method], []
         for suite in suites:
             cells = [v for k, v in summary.items() if k[0] == method and k[1] == suite]
-            means = {m: _mean([c[m] for c in cells]) for m in METRICS}
-            per_suite.append(means)
-            row += [_fmt(means[m]) for m in METRICS[:3]]
-        row += [_fmt(_mean([p[m] for p in per_suite])) for m in METRICS]
+            all_cells += cells
+            row += [_fmt_std(*_group_rate(cells, m)) for m in METRICS[:3]]
+        suite_cells = [[v for k, v in summary.items() if k[0] == method and k[1] == s] for s in suites]
+        for m in METRICS:
+            per_suite = [_group_rate(cells, m)[0] for cells in suite_cells if cells]
+            row.append(_fmt(_mean(per_suite)))
+        row += [str(sum(c.errors for c in all_cells)), str(sum(c.n for c in all_cells))]
         rows.append(row)
     return header, rows
 
 
 def level_rows(summary) -> tuple[list[str], list[list[str]]]:
-    """One row per (method, suite, level) with all metrics and episode counts."""
-    header = ["Method", "Suite", "Level", *METRICS, "Episodes", "Errors"]
-    rows = [[m, s, lv] + [_fmt(v[k]) for k in METRICS] + [str(v["n"]), str(v["errors"])]
-            for (m, s, lv), v in sorted(summary.items())]
+    """One row per (method, suite, level): every metric with its 95 % interval, errors, ETS and sample sizes."""
+    header = ["Method", "Suite", "Level"]
+    for m in METRICS[:3]:
+        header += [m, f"{m} 95% CI"]
+    header += ["Timeout", "Errors", "ETS", "Episodes", "Seeds"]
+    rows = []
+    for (m, s, lv), cell in sorted(summary.items()):
+        row = [m, s, lv]
+        for metric in METRICS[:3]:
+            row += [_fmt_std(cell.rate(metric), cell.seed_std(metric)), _ci(*cell.interval(metric))]
+        row += [_fmt(cell.rate("Timeout")), str(cell.errors), _fmt(cell.steps), str(cell.n),
+                str(len(cell.per_seed or {}))]
+        rows.append(row)
     return header, rows
 
 
 def task_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
-    """One row per (suite, level, task): ``successes/episodes`` (collisions in brackets) for every method."""
-    counts: dict[tuple, dict[str, list[int]]] = defaultdict(lambda: defaultdict(lambda: [0, 0, 0]))
+    """One row per (suite, level, task): ``successes/episodes`` (collisions, errors in brackets) per method."""
+    groups: dict[tuple, dict[str, list[dict]]] = defaultdict(lambda: defaultdict(list))
     for r in records:
-        if r["termination"] == "error":
-            continue
-        c = counts[(r["suite"], r["level"], r["task"])][r["method"]]
-        c[0] += bool(r["success"])
-        c[1] += bool(r["collision"])
-        c[2] += 1
+        groups[(r["suite"], r["level"], r["task"])][r["method"]].append(r)
     methods = sorted({r["method"] for r in records})
     header = ["Suite", "Level", "Task", *methods]
     rows = []
-    for (suite, level, task), by_method in sorted(counts.items()):
+    for (suite, level, task), by_method in sorted(groups.items()):
         cells = []
         for m in methods:
-            s, col, n = by_method.get(m, (0, 0, 0))
-            cells.append("-" if not n else f"{s}/{n}" + (f" ({col} coll.)" if level != "Free" else ""))
+            c = _count(by_method.get(m, []))
+            notes = ([f"{c.collision} coll."] if level != "Free" else []) + ([f"{c.errors} err."] if c.errors else [])
+            cells.append("-" if not c.n else f"{c.success}/{c.n}" + (f" ({', '.join(notes)})" if notes else ""))
         rows.append([suite, level, str(task), *cells])
     return header, rows
 
@@ -119,17 +244,52 @@ def markdown(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
+def eval_info(records: list[dict]) -> dict:
+    """LeRobot's eval schema: ``per_episode``, ``per_task`` (one entry per method x env x task),
+    ``per_group`` (per method x env), ``overall`` (per method), each with ``pc_success`` and the sums of rewards
+    (reward here = success, as LeRobot's LIBERO envs report it), plus our obstacle fields."""
+    def agg(rs: list[dict]) -> dict:
+        succ = [bool(r.get("success")) and r.get("termination") != "error" for r in rs]
+        return {"avg_sum_reward": float(np.mean(succ)) if rs else float("nan"),
+                "avg_max_reward": float(np.mean(succ)) if rs else float("nan"),
+                "pc_success": 100.0 * float(np.mean(succ)) if rs else float("nan"),
+                "pc_collision": 100.0 * float(np.mean([bool(r.get("collision")) for r in rs])) if rs else float("nan"),
+                "n_episodes": len(rs), "n_errors": sum(r.get("termination") == "error" for r in rs),
+                "eval_s": float(sum(r.get("wall_time", 0.0) for r in rs)),
+                "eval_ep_s": float(np.mean([r.get("wall_time", 0.0) for r in rs])) if rs else float("nan")}
+
+    per_episode = [{"method": r["method"], "task_group": r["env_id"], "task_id": r["task"],
+                    "episode_ix": r["episode"], "seed": r["seed"], "run_seed": r.get("run_seed", 0),
+                    "sum_reward": float(bool(r.get("success"))), "max_reward": float(bool(r.get("success"))),
+                    "success": bool(r.get("success")), "collision": bool(r.get("collision")),
+                    "termination": r.get("termination"), "steps": r.get("steps"), "video_path": r.get("video")}
+                   for r in sorted(records, key=record_key)]
+    tasks: dict[tuple, list[dict]] = defaultdict(list)
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    methods: dict[str, list[dict]] = defaultdict(list)
+    for r in records:
+        tasks[(r["method"], r["env_id"], r["task"])].append(r)
+        groups[(r["method"], r["env_id"])].append(r)
+        methods[r["method"]].append(r)
+    return {
+        "per_episode": per_episode,
+        "per_task": [{"method": m, "task_group": g, "task_id": t, "metrics": agg(rs)}
+                     for (m, g, t), rs in sorted(tasks.items())],
+        "per_group": {f"{m}/{g}": agg(rs) for (m, g), rs in sorted(groups.items())},
+        "overall": {m: agg(rs) for m, rs in sorted(methods.items())},
+    }
+
+
 def write_report(records: list[dict], out: Path) -> str:
-    """Write ``table.md``, ``table.csv``, ``levels.csv``, ``tasks.csv`` and ``results.png`` into ``out``;
-    return the Markdown."""
+    """Write ``table.md``, ``table.csv``, ``levels.csv``, ``tasks.csv``, ``eval_info.json`` and ``results.png``
+    into ``out``; return the Markdown."""
     summary = summarise(records)
     header, rows = table_rows(summary)
     lheader, lrows = level_rows(summary)
     theader, trows = task_rows(records)
     text = (
         "## Table I (percent; averaged over levels within a suite)\n\n" + markdown(header, rows)
-        + "\n\nClean = success without collision, Total = success irrespective of collision, "
-        "Avoid = 1 - collision rate, Timeout = episodes that hit the step limit.\n\n"
+        + "\n\n" + CAPTION + "\n\n"
         "## Per level\n\n" + markdown(lheader, lrows) + "\n\n"
         "## Per task (successes / episodes)\n\n" + markdown(theader, trows) + "\n"
     )
@@ -138,11 +298,14 @@ def write_report(records: list[dict], out: Path) -> str:
                          "tasks.csv": (theader, trows)}.items():
         with open(out / name, "w", newline="") as f:
             csv.writer(f).writerows([h, *r])
+    (out / "eval_info.json").write_text(json.dumps(eval_info(records), indent=1, allow_nan=True))
     _plot(summary, out / "results.png")
     return text
 
 
 def _plot(summary, path: Path) -> None:
+    """Bars per (suite, level) cell and method; error bars: std over seeds when there are several, else the
+    Wilson interval."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -155,12 +318,20 @@ def _plot(summary, path: Path) -> None:
     x = np.arange(len(cells))
     for ax, metric in zip(axes, METRICS[:3]):
         for i, method in enumerate(methods):
-            values = [summary.get((method, s, lv), {}).get(metric, np.nan) for s, lv in cells]
-            ax.bar(x + i * width, np.nan_to_num(values), width, label=method)
+            values, errors = [], [[], []]
+            for s, lv in cells:
+                cell = summary.get((method, s, lv))
+                value = cell.rate(metric) if cell else float("nan")
+                std = cell.seed_std(metric) if cell else float("nan")
+                lo, hi = (value - std, value + std) if std == std else (cell.interval(metric) if cell else (value,) * 2)
+                values.append(value)
+                errors[0].append(0.0 if value != value or lo != lo else max(0.0, value - lo))
+                errors[1].append(0.0 if value != value or hi != hi else max(0.0, hi - value))
+            ax.bar(x + i * width, np.nan_to_num(values), width, yerr=errors, capsize=2, label=method)
         ax.set_xticks(x + 0.4 - width / 2, [f"{s}\n{lv}" for s, lv in cells])
         ax.set_title(metric)
-        ax.set_ylim(0, 100)
-    axes[0].set_ylabel("%")
+        ax.set_ylim(0, 105)
+    axes[0].set_ylabel("% (error bars: std over seeds, else 95 % Wilson)")
     axes[-1].legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

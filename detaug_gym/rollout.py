@@ -213,7 +213,10 @@ class EpisodeRecord:
     """One JSON line of the bench: what happened in one episode.
 
     ``summary`` is the policy's own account of the episode (``policy.episode_summary()``, when it has one:
-    DetAug's selected costs, AEGIS's interventions, CAPE's guided replans).
+    DetAug's selected costs, AEGIS's interventions, CAPE's guided replans). ``obstacle_pose`` is the settled
+    pose (position, xyzw quaternion) the collision rule measures from; ``first_collision_step`` the step
+    (1-based) at which the obstacle first moved; ``steps`` the episode's length (ETS); ``run_seed`` the bench
+    seed the episode seed derives from; ``video`` the mp4 of the episode when one was rendered.
     """
 
     method: str
@@ -235,6 +238,10 @@ class EpisodeRecord:
     error: str | None = None
     task_key: str | None = None
     summary: dict = field(default_factory=dict)
+    run_seed: int = 0
+    obstacle_pose: list[float] | None = None
+    first_collision_step: int | None = None
+    video: str | None = None
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -248,25 +255,33 @@ class ObstacleMetrics(Hook):
         self.collision = self.contact = False
         self.clearance = math.inf
         self.start_info: dict = {}
+        self.obstacle_pose: list[float] | None = None
+        self.first_collision: int | None = None
         self.steps = 0
 
     def on_start(self, env, obs: dict[str, np.ndarray], info: dict) -> None:
         self.start_info = info
+        if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) >= 0.5:
+            self.obstacle_pose = [round(float(v), 6) for v in obs["obstacle_pose"]]
 
     def on_step(self, step: Step) -> None:
         self.steps += 1
+        if step.info["collision"] and self.first_collision is None:
+            self.first_collision = self.steps
         self.collision |= bool(step.info["collision"])
         self.contact |= bool(step.info["robot_obstacle_contact"])
         self.clearance = min(self.clearance, float(step.info["min_clearance"]))
 
 
-def run_episode(env, policy: Policy, key: EpisodeKey, suite: str, level: str) -> EpisodeRecord:
-    """Roll ``policy`` out in ``env`` for one episode; never raises (errors are recorded)."""
-    record = EpisodeRecord(key.method, key.env_id, suite, level, key.task, key.episode, key.seed)
+def run_episode(env, policy: Policy, key: EpisodeKey, suite: str, level: str, hooks: Iterable[Hook] = (),
+                run_seed: int = 0) -> EpisodeRecord:
+    """Roll ``policy`` out in ``env`` for one episode (with extra ``hooks``, e.g. a video); never raises
+    (errors are recorded)."""
+    record = EpisodeRecord(key.method, key.env_id, suite, level, key.task, key.episode, key.seed, run_seed=run_seed)
     start = time.perf_counter()
     metrics = ObstacleMetrics()
     try:
-        result = rollout(env, policy, seed=key.seed, options={"task": key.task}, hooks=[metrics])
+        result = rollout(env, policy, seed=key.seed, options={"task": key.task}, hooks=[metrics, *hooks])
         record.task_key = result.context.task_key if result.context else None
         record.success = bool(result.info["is_success"])
         record.termination = "success" if record.success else "timeout"
@@ -277,6 +292,7 @@ def run_episode(env, policy: Policy, key: EpisodeKey, suite: str, level: str) ->
         record.termination = "error"
     record.init_state, record.obstacle = metrics.start_info.get("init_state"), metrics.start_info.get("obstacle")
     record.collision, record.contact, record.steps = metrics.collision, metrics.contact, metrics.steps
+    record.obstacle_pose, record.first_collision_step = metrics.obstacle_pose, metrics.first_collision
     record.min_clearance = None if math.isinf(metrics.clearance) else metrics.clearance
     record.wall_time = time.perf_counter() - start
     return record

@@ -34,6 +34,8 @@ import torch
 from tqdm import tqdm
 
 from detaug_gym.config import parse_config
+from detaug_gym.data.dataset import DatasetError, read_env_args
+from detaug_gym.envs.suites import suite_of_env
 from detaug_gym.models.checkpoint import (
     METHODS,
     TRAIN_STATE,
@@ -197,11 +199,32 @@ def data_files(cfg: TrainConfig) -> list[str]:
 
 
 def load_data(cfg: TrainConfig, init=None) -> WindowDataset:
-    demos = [demo for path in data_files(cfg) for demo in read_demos(path, OBS_KEYS)]
+    demos = []
+    for path in data_files(cfg):
+        try:
+            loaded = read_demos(path, OBS_KEYS)
+        except (ValueError, OSError, DatasetError) as err:
+            raise SystemExit(f"error: --data {path}: {err}") from None
+        for demo in loaded:
+            bad = [k for k, v in {"actions": demo.actions, **demo.obs}.items() if not np.isfinite(v).all()]
+            if bad:
+                raise SystemExit(f"error: --data {path}: data/{demo.name} has non-finite values in {', '.join(bad)}; "
+                                 "drop or re-collect that demo")
+        demos += loaded
     return WindowDataset(demos, cfg.horizon, PlanLayout(), OBS_KEYS, use_labels=cfg.method == "detaug",
                          n_points=cfg.n_points if cfg.method == "demogen" else 0,
                          normalizers=init.normalizers if init is not None else None, seed=cfg.seed,
                          zero_label_weight=cfg.zero_label_weight)
+
+
+def trained_on(cfg: TrainConfig) -> dict:
+    """The suite and env ids of the ``--data`` files (recorded in the checkpoint; empty when they name none)."""
+    ids = sorted({env_id for path in data_files(cfg) if (env_id := read_env_args(path).get("env_name"))})
+    try:
+        suites = sorted({suite_of_env(env_id)[0].name for env_id in ids})
+    except ValueError:
+        return {"env_ids": ids}
+    return {"suite": suites[0], "env_ids": ids} if len(suites) == 1 else {"env_ids": ids}
 
 
 def resume_state(cfg: TrainConfig) -> dict | None:
@@ -279,7 +302,8 @@ class Run:
                         layout=self.data.layout, obs_keys=OBS_KEYS, normalizers=self.data.normalizers,
                         labels=LabelSupport(*self.data.label_bank()),
                         n_points=cfg.n_points if cfg.method == "demogen" else 0, action_steps=cfg.action_steps,
-                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary})
+                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary,
+                                      "trained_on": trained_on(cfg)})
         torch_save(out / TRAIN_STATE, {
             "config": dataclasses.asdict(cfg), "model": self.network.state_dict(),
             "optimizer": self.optimizer.state_dict(), "schedule": self.schedule.state_dict(),

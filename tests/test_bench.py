@@ -29,7 +29,7 @@ class ExplodingPolicy:
 
 
 def _args(tmp_path, methods, episodes=2):
-    return bench.BenchConfig(methods=methods, suites=["newton"], levels=["2"], episodes=episodes, seed=3,
+    return bench.BenchConfig(methods=methods, suites=["newton"], levels=["2"], episodes=episodes, seeds=[3],
                              out=str(tmp_path), env_kwargs=["max_episode_steps=12"])  # short episodes: a fast test
 
 
@@ -49,19 +49,21 @@ def test_bench_runs_resumes_and_reports(tmp_path):
     assert all(r["termination"] == "timeout" and r["steps"] == 12 for r in by_method["random"])
     assert all(r["termination"] == "error" and "boom" in r["error"] for r in by_method["exploding"])
     assert "random" in text and (tmp_path / "table.csv").exists() and (tmp_path / "results.png").exists()
-    tasks = (tmp_path / "tasks.csv").read_text().splitlines()  # per-task counts; errors are not episodes
-    assert tasks[0].startswith("Suite,Level,Task") and any(",0/" in row for row in tasks[1:])
-    # rerunning resumes: nothing is repeated or lost
+    tasks = (tmp_path / "tasks.csv").read_text().splitlines()  # per-task counts; errors count as episodes
+    assert tasks[0].startswith("Suite,Level,Task") and any("0/2 (0 coll., 2 err.)" in row for row in tasks[1:])
+    # rerunning resumes: nothing finished is repeated or lost; the errored episodes are retried
     bench.run(_args(tmp_path, ["random", "exploding"]))
-    assert len(_lines(tmp_path)) == 4
+    assert len(_lines(tmp_path)) == 6
     # asking for more episodes runs only the new ones
     bench.run(_args(tmp_path, ["random"], episodes=3))
-    assert len(_lines(tmp_path)) == 5
+    assert len(_lines(tmp_path)) == 7
 
 
 def test_unknown_method_suite_level_fail_clearly(tmp_path):
     with pytest.raises(SystemExit, match="registered policies: .*random"):
         bench.run(_args(tmp_path, ["nonexistent"]))
+    with pytest.raises(SystemExit, match="newton: L2, Free"):
+        bench.run(bench.BenchConfig(methods=["random"], suites=["newton"], levels=["1"], out=str(tmp_path)))
     with pytest.raises(SystemExit, match="valid suites"):
         bench.parse_suites(["kitchen"])
     with pytest.raises(SystemExit, match="valid levels"):
@@ -80,7 +82,7 @@ def test_method_options_parse_and_bad_options_fail_before_running(tmp_path):
 
 
 def test_episode_seeds_do_not_depend_on_method_or_order():
-    jobs = bench.plan_jobs(["a", "b"], ["spatial"], ["L1", "L2"], 4, seed=0)
+    jobs = bench.plan_jobs(["a", "b"], ["spatial"], ["L1", "L2"], 4, seeds=[0])
     seeds = {}
     for job in jobs:
         seeds.setdefault((job.key.env_id, job.key.episode), set()).add((job.key.seed, job.key.task))

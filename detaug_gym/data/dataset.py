@@ -171,6 +171,16 @@ def load(path: str | os.PathLike) -> Dataset:
     return Dataset(path, demos, attrs)
 
 
+def read_env_args(path: str | os.PathLike) -> dict:
+    """The ``data`` group's ``env_args`` (env name, kwargs) of a dataset file without reading its demos
+    (``{}`` when the file stores none)."""
+    path = Path(path)
+    with _open(path) as f:
+        data = f.get("data")
+        value = _decode(data.attrs["env_args"]) if data is not None and "env_args" in data.attrs else {}
+    return value if isinstance(value, dict) else {}
+
+
 def _read_demo(group, name: str) -> Demo:
     if "actions" not in group:
         raise KeyError("no 'actions' dataset")

@@ -30,6 +30,14 @@ from detaug_gym.envs.suites import SuiteSpec, TaskSpec
 ACTION_DIM = 7
 SETTLE_STEPS = 10
 COLLISION_DISPLACEMENT = 1e-3  # m, SafeLIBERO: summed absolute displacement of the obstacle
+# MuJoCo resets the simulation by itself when one of these fires (bad qpos / qvel / qacc); the episode's state
+# is then meaningless, and without a check the env carried on and reported the reset as a collision.
+INSTABILITY_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                        mujoco.mjtWarning.mjWARN_BADQACC)
+
+
+class SimulationError(RuntimeError):
+    """The physics became unstable (non-finite state or MuJoCo's own bad-state reset) during a step."""
 
 
 @dataclass
@@ -164,7 +172,9 @@ class ObstacleManipulationEnv(gym.Env):
             raise ValueError(f"action must have shape ({ACTION_DIM},), got {action.shape}")
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action must be finite, got {action}")
+        before = self._instability_count()
         self._steppers[self.episode.task].step(np.clip(action, -1.0, 1.0))
+        self._check_stable(before)
         self._steps += 1
         contact = self._robot_obstacle_contact()
         info = self._info(contact=contact)
@@ -244,6 +254,21 @@ class ObstacleManipulationEnv(gym.Env):
         mujoco.mj_forward(self.scene.model, self.scene.data)
 
     # ------------------------------------------------------------------ internals
+    def _instability_count(self) -> int:
+        warnings = self.scene.data.warning
+        return int(sum(warnings[int(w)].number for w in INSTABILITY_WARNINGS))
+
+    def _check_stable(self, before: int) -> None:
+        """Raise :class:`SimulationError` if the step left a non-finite state or MuJoCo reset itself."""
+        d = self.scene.data
+        if self._instability_count() > before:
+            names = [w.name.removeprefix("mjWARN_") for w in INSTABILITY_WARNINGS
+                     if d.warning[int(w)].number > 0]
+            raise SimulationError(f"simulation unstable at step {self._steps + 1}: MuJoCo reported "
+                                  f"{', '.join(names)} and reset the state (episode ended as an error)")
+        if not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))):
+            raise SimulationError(f"simulation unstable at step {self._steps + 1}: non-finite qpos/qvel")
+
     def _obstacle_choices(self, obstacle) -> tuple[str, ...]:
         if obstacle is None:
             return self.obstacle_types

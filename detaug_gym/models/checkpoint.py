@@ -107,7 +107,13 @@ class Checkpoint:
     @property
     def action_steps(self) -> int | None:
         """The replan period N saved with the checkpoint (``config.json`` ``policy.action_steps``), or None."""
-        return self.config.get("policy", {}).get("action_steps")
+        policy = self.config.get("policy") or {}
+        return policy.get("action_steps") if isinstance(policy, dict) else None
+
+    @property
+    def trained_on(self) -> dict:
+        """``{"suite": ..., "env_ids": [...]}`` of the demos it was trained on (empty for older checkpoints)."""
+        return dict(self.config.get("trained_on") or {})
 
 
 def save_checkpoint(path: str | Path, *, method: str, network: FlowNetwork, ema_state: dict, layout: PlanLayout,
@@ -133,7 +139,10 @@ def read_config(path: str | Path) -> dict:
     """``config.json`` of a checkpoint folder, or a :class:`CheckpointError` naming the train command."""
     path = Path(path)
     try:
-        return json.loads((path / CONFIG).read_text())
+        config = json.loads((path / CONFIG).read_text())
+        if not isinstance(config, dict):
+            raise ValueError(f"it holds a JSON {type(config).__name__}, not an object")
+        return config
     except FileNotFoundError:
         raise CheckpointError(f"no flow-policy checkpoint at {path} ({CONFIG} missing). Make it with:\n  "
                               f"{train_command(path)}") from None
@@ -152,7 +161,8 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
     path = Path(path)
     config = read_config(path)
     method = config.get("method")
-    command = train_command(path, method, config.get("train", {}).get("data"))
+    train = config.get("train") if isinstance(config.get("train"), dict) else {}
+    command = train_command(path, method, train.get("data"))
     try:
         network = FlowNetwork(NetworkConfig.from_dict(config["network"]))
         state = torch.load(path / WEIGHTS, map_location=device, weights_only=True)
@@ -171,6 +181,30 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
         reason = (str(err).strip().splitlines() or [""])[0][:160]
         raise CheckpointError(f"corrupt checkpoint at {path} ({type(err).__name__}: {reason}). "
                               f"Remake it with:\n  {command}") from None
-    if checkpoint.normalizers["plan"].dim != checkpoint.layout.plan_dim:
-        raise CheckpointError(f"{path}: plan normaliser does not match the plan layout. Remake it with:\n  {command}")
+    problem = _mismatch(checkpoint)
+    if problem:
+        raise CheckpointError(f"{path}: {problem}. Remake it with:\n  {command}")
     return checkpoint
+
+
+def _mismatch(checkpoint: Checkpoint) -> str | None:
+    """What in a loaded checkpoint contradicts the rest (normalisers vs network and layout, keys, replan period)."""
+    from detaug_gym.models.dataset import DERIVED_KEYS
+
+    dit = checkpoint.network.config.dit
+    if checkpoint.normalizers["plan"].dim != checkpoint.layout.plan_dim:
+        return (f"{NORMALIZATION}: the plan normaliser has {checkpoint.normalizers['plan'].dim} dims, the plan layout "
+                f"{checkpoint.layout.plan_dim}")
+    if checkpoint.normalizers["obs"].dim != dit.obs_dim:
+        return f"{NORMALIZATION}: the observation normaliser has {checkpoint.normalizers['obs'].dim} dims, the " \
+               f"network reads {dit.obs_dim}"
+    known = set(OBS_KEYS) | set(DERIVED_KEYS)
+    unknown = [k for k in checkpoint.obs_keys if k not in known]
+    if unknown:
+        return f"{CONFIG}: unknown observation keys {unknown}; known: {', '.join(sorted(known))}"
+    steps = checkpoint.action_steps
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= dit.horizon):
+        return f"{CONFIG}: policy.action_steps must be an integer in [1, {dit.horizon}], got {steps!r}"
+    if checkpoint.labels.dim not in (0, dit.label_dim) and len(checkpoint.labels.bank):
+        return f"{NORMALIZATION}: the training labels have {checkpoint.labels.dim} dims, the network {dit.label_dim}"
+    return None

@@ -73,4 +73,6 @@ class Normalizer:
         scale = np.asarray(data["scale"], dtype=np.float32)
         if center.shape != scale.shape or center.ndim != 1 or not (scale > 0).all():
             raise ValueError("normaliser needs 1-D center and positive scale of equal length")
+        if not (np.isfinite(center).all() and np.isfinite(scale).all()):
+            raise ValueError("normaliser statistics are not finite (NaN or inf)")
         return cls(center, scale, data.get("mode", "minmax"))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import warnings
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -54,6 +55,15 @@ class FlowPolicy:
         seed: default seed for :meth:`reset` without one.
     """
 
+    zoo_method: str | None = None  # the zoo folder ``policies/<zoo_method>/<suite>/`` a subclass loads by default
+
+    @classmethod
+    def checkpoint_dirs(cls, suite: str = "spatial", checkpoint: str | Path | None = None, **_) -> list[Path]:
+        """The checkpoint folder(s) this policy loads for ``suite`` with these options, without loading them."""
+        if checkpoint is not None:
+            return [Path(checkpoint)]
+        return [zoo_dir(cls.zoo_method, suite)] if cls.zoo_method else []
+
     def __init__(self, checkpoint: Checkpoint | str | Path, action_steps: int | None = None, flow_steps: int = 10,
                  label_mode: str = "auto", binarize_gripper: bool = True, seed: int | None = None) -> None:
         self.checkpoint = checkpoint if isinstance(checkpoint, Checkpoint) else load_checkpoint(checkpoint)
@@ -72,6 +82,7 @@ class FlowPolicy:
         self.label_mode, self.binarize_gripper = label_mode, binarize_gripper
         self._default_seed = seed
         self._queue: deque[np.ndarray] = deque()
+        self._warned_suite = False
         self.generator = torch.Generator()
         self.reset(seed)
 
@@ -98,8 +109,14 @@ class FlowPolicy:
 
     # ------------------------------------------------------------------ protocol
     def reset(self, seed: int | None = None, context=None) -> None:
-        """Clear the action queue and reseed the sampling noise (``context``: the episode's, unused here)."""
+        """Clear the action queue and reseed the sampling noise; warns once when ``context`` (the episode's)
+        names another suite than the checkpoint was trained on."""
         self._queue.clear()
+        suite = self.checkpoint.trained_on.get("suite")
+        if context is not None and suite and context.suite != suite and not self._warned_suite:
+            warnings.warn(f"{self.checkpoint.path} was trained on {suite} demos and now runs in {context.env_id}; "
+                          "its numbers there say little", stacklevel=2)
+            self._warned_suite = True
         seed = self._default_seed if seed is None else seed
         if seed is None:
             self.generator.seed()

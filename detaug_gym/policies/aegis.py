@@ -60,7 +60,7 @@ import numpy as np
 
 from detaug_gym.geometry.ellipsoid import min_volume_ellipsoid
 from detaug_gym.geometry.sdf import quat_xyzw_to_matrix
-from detaug_gym.policies.base import make_policy
+from detaug_gym.policies.base import make_policy, policy_class
 
 POSITION_SCALE = 0.05  # m per action unit per step (OSC_POSE output_max)
 ROTATION_SCALE = 0.5  # rad per action unit per step
@@ -268,6 +268,12 @@ class AegisPolicy:
         ee_offset: end-effector centre, m from the grip site towards the wrist.
         **base_options: options of the wrapped policy (``checkpoint``, ``action_steps``, ``seed``, ...).
     """
+
+    @classmethod
+    def checkpoint_dirs(cls, suite: str = "spatial", base: str = "base", **base_options) -> list:
+        """The checkpoint folders of the wrapped policy."""
+        dirs = getattr(policy_class(base), "checkpoint_dirs", None)
+        return dirs(suite, **base_options) if callable(dirs) else []
 
     def __init__(self, suite: str = "spatial", base: str = "base", alpha: float = 10.0, dt: float = CONTROL_DT,
                  ee_semi_axes: tuple[float, float, float] = EE_SEMI_AXES, ee_offset: float = EE_OFFSET,

@@ -77,6 +77,8 @@ class CapePolicy(FlowPolicy):
         **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``flow_steps``, ``seed``, ...).
     """
 
+    zoo_method = "base"
+
     def __init__(self, suite: str = "spatial", checkpoint: str | None = None, prefix_steps: int = 2,
                  t_start: float = 0.5, refine_steps: int | None = None, guidance_scale: float = 3.0,
                  guidance_t_min: float = 0.8, sphere_radius: float = EEF_SPHERE_RADIUS,

@@ -22,6 +22,8 @@ class DemoGenPolicy(FlowPolicy):
         **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``action_steps``, ``flow_steps``, ...).
     """
 
+    zoo_method = "demogen"
+
     def __init__(self, suite: str = "spatial", checkpoint: str | Path | None = None, **options) -> None:
         loaded = load_checkpoint(checkpoint or zoo_dir("demogen", suite))
         if loaded.method != "demogen":

@@ -60,6 +60,8 @@ class DetAugPolicy(FlowPolicy):
         action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
     """
 
+    zoo_method = "detaug"
+
     def __init__(self, suite: str = "spatial", checkpoint: str | None = None, k: int = 32, latch: bool = False,
                  labels: str = "random", cost: str = "penetration", mode: str = "select",
                  guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,

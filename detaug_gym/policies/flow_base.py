@@ -16,6 +16,8 @@ class BaseFlowPolicy(FlowPolicy):
         **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``action_steps``, ``flow_steps``, ...).
     """
 
+    zoo_method = "base"
+
     def __init__(self, suite: str = "spatial", checkpoint: str | Path | None = None, **options) -> None:
         super().__init__(load_checkpoint(checkpoint or zoo_dir("base", suite)), **options)
 
