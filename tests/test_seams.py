@@ -181,3 +181,13 @@ def test_scripted_expert_takes_its_recipe_from_the_context_not_the_scene():
     for suite in SUITES.values():  # every task of every suite has a recipe
         for task in suite.tasks:
             recipe_for(suite.name, task.key)
+
+
+@pytest.mark.slow
+def test_long_l1_support_ray_passes_overlapping_robot_links():
+    """SafeLibero-Long-L1, task 1, seed 16 raised "no support surface": the downward ray bounced between two
+    overlapping robot links; it now steps through a link it already passed."""
+    env = gym.make("SafeLibero-Long-L1-v0", task=1)
+    obs, info = env.reset(seed=16)
+    assert info["obstacle"] is not None and obs["obstacle_mask"][0] == 1.0
+    env.close()

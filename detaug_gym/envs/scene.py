@@ -222,7 +222,7 @@ class Scene:
         m = self.model
         geomid = np.zeros(1, dtype=np.int32)
         down = np.array([0.0, 0.0, -1.0])
-        z, exclude = 3.0, -1
+        z, exclude, passed = 3.0, -1, set()
         for _ in range(50):  # step through robot and visual-only geoms above the spot, one body at a time
             dist = mujoco.mj_ray(m, self.data, np.array([xy[0], xy[1], z]), down, None, 1, exclude, geomid)
             if dist < 0:
@@ -230,7 +230,11 @@ class Scene:
             g = geomid[0]
             if not self.robot_geom[g] and (m.geom_contype[g] or m.geom_conaffinity[g]):
                 return float(z - dist)
-            z, exclude = z - dist + 1e-6, int(m.geom_bodyid[g])
+            body = int(m.geom_bodyid[g])
+            # Restart just above the hit with that body excluded; when the ray is back on a body it already
+            # passed (two overlapping robot links send it to and fro), restart just below the hit instead.
+            z, exclude = z - dist + (-1e-4 if body in passed else 1e-6), body
+            passed.add(body)
         raise RuntimeError(f"no support surface below {xy}")
 
     # ------------------------------------------------------------------ contacts
