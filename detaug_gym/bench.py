@@ -180,6 +180,9 @@ def check_methods(methods: list[str], suites: list[str]) -> None:
                 problems.append(f"method {spec!r} on suite {suite!r}: no checkpoint at {missing[0]} (the zoo has "
                                 f"it only for the suites whose cards are in policies/; train it with "
                                 f"python -m detaug_gym.train --out {missing[0]})")
+                continue
+            for path in method_checkpoints(name, options, suite):
+                problems += [f"method {spec!r} on suite {suite!r}: {p}" for p in _checkpoint_problem(path)]
         if options and not problems:
             try:
                 make_policy(name, suite=suites[0], **options)
@@ -187,6 +190,17 @@ def check_methods(methods: list[str], suites: list[str]) -> None:
                 problems.append(f"method {spec!r}: {exc}")
     if problems:
         raise SystemExit("cannot run:\n  " + "\n  ".join(problems))
+
+
+def _checkpoint_problem(path: Path) -> list[str]:
+    """[] when the checkpoint at ``path`` loads, else its error (loading checks it against itself)."""
+    from detaug_gym.models.checkpoint import CheckpointError, load_checkpoint
+
+    try:
+        load_checkpoint(path)
+    except CheckpointError as exc:
+        return [str(exc).splitlines()[0]]
+    return []
 
 
 def check_env_kwargs(cells: list[tuple[str, str]], env_kwargs: dict) -> None:
