@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from detaug_gym.models.policy import FlowPolicy, load_checkpoint, zoo_dir
+from detaug_gym.policies.options import FlowOptions
 
 
 class BaseFlowPolicy(FlowPolicy):
@@ -13,11 +14,13 @@ class BaseFlowPolicy(FlowPolicy):
     Args:
         suite: zoo suite folder.
         checkpoint: a checkpoint folder instead of the zoo's.
-        **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``action_steps``, ``flow_steps``, ...).
+        **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``action_steps``, ``flow_steps``, ...);
+            all are :class:`~detaug_gym.policies.options.FlowOptions`.
     """
 
     def __init__(self, suite: str = "spatial", checkpoint: str | Path | None = None, **options) -> None:
-        super().__init__(load_checkpoint(checkpoint or zoo_dir("base", suite)), **options)
+        opts = FlowOptions.from_kwargs(suite=suite, checkpoint=checkpoint, **options)
+        super().__init__(load_checkpoint(opts.checkpoint or zoo_dir("base", opts.suite)), **opts.flow_policy_kwargs())
 
 
 def load(path: str | Path, **options) -> FlowPolicy:
