@@ -72,17 +72,6 @@ class FlowPolicy:
         self.generator = torch.Generator()
         self.reset(options.seed)
 
-    @classmethod
-    def load(cls, path: str | Path, **options) -> FlowPolicy:
-        """Load a checkpoint folder; a missing or corrupt one raises ``CheckpointError`` naming the train
-        command that makes it."""
-        return cls(load_checkpoint(path), **options)
-
-    @classmethod
-    def from_zoo(cls, method: str, suite: str, **options) -> FlowPolicy:
-        """Load ``policies/<method>/<suite>/``."""
-        return cls.load(zoo_dir(method, suite), **options)
-
     # ------------------------------------------------------------------ properties
     @property
     def label_dim(self) -> int:

@@ -14,6 +14,7 @@ from detaug_gym.policies.base import (
     Policy,
     PolicySpec,
     available_policies,
+    load,
     make_policy,
     parse_policy_options,
     policy_class,
@@ -36,14 +37,6 @@ register_policy("cape", "detaug_gym.policies.cape:CapePolicy", "CAPE: re-noise t
                 options=f"{_OPTIONS}:CapeOptions")
 register_policy("demogen", "detaug_gym.policies.demogen:DemoGenPolicy", "DemoGen: obstacle-cloud flow policy",
                 options=f"{_OPTIONS}:DemoGenOptions")
-
-
-def load(path, **options):
-    """A policy for a trained checkpoint folder (``policies/<method>/<suite>/``)."""
-    from detaug_gym.policies.flow_base import load as load_flow
-
-    return load_flow(path, **options)
-
 
 __all__ = [
     "Policy",

@@ -26,6 +26,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -167,3 +168,19 @@ def make_policy(name: str, **kwargs: Any) -> Policy:
     """
     return policy_class(name)(**kwargs)
 
+
+def load(path: str | Path, **options: Any) -> Policy:
+    """The policy for a trained checkpoint folder (``policies/<method>/<suite>/``): the registered policy of the
+    method it was trained with (``base``, ``detaug`` or ``demogen``), built with ``options``. The one loader;
+    ``make_policy(name, checkpoint=path)`` builds a chosen method (``cape``, ``aegis``) on a folder instead.
+
+    Raises:
+        CheckpointError: no readable checkpoint at ``path`` (the message names the train command).
+    """
+    from detaug_gym.models.checkpoint import CheckpointError, read_config
+
+    method = read_config(path).get("method")
+    if not isinstance(method, str) or method.lower() not in _REGISTRY:
+        raise CheckpointError(f"{path} was trained with method {method!r}, which no registered policy loads; "
+                              f"registered policies: {', '.join(available_policies())}")
+    return make_policy(method, checkpoint=str(path), **options)

@@ -21,13 +21,3 @@ class BaseFlowPolicy(FlowPolicy):
     def __init__(self, suite: str = "spatial", checkpoint: str | Path | None = None, **options) -> None:
         opts = FlowOptions.from_kwargs(suite=suite, checkpoint=checkpoint, **options)
         super().__init__(load_checkpoint(opts.checkpoint or zoo_dir("base", opts.suite)), **opts.flow_policy_kwargs())
-
-
-def load(path: str | Path, **options) -> FlowPolicy:
-    """The policy for a checkpoint folder: DetAug selection for label checkpoints, else a plain flow policy."""
-    checkpoint = load_checkpoint(path)
-    if checkpoint.method == "detaug":
-        from detaug_gym.policies.detaug import DetAugPolicy
-
-        return DetAugPolicy(checkpoint=str(path), **options)
-    return FlowPolicy(checkpoint, **options)
