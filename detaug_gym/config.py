@@ -135,92 +135,88 @@ def field_default(f: dataclasses.Field) -> Any:
 
 
 # ---------------------------------------------------------------------------------------------- strings -> values
-def parse_bool(text: str) -> bool:
+def parse_bool(text: str, name: str = "value") -> bool:
     """``true/false``, ``1/0``, ``yes/no`` in any case; anything else raises ``ValueError``."""
     word = str(text).strip().lower()
     if word in TRUE_WORDS:
         return True
     if word in FALSE_WORDS:
         return False
-    raise ValueError(f"expected a boolean (true/false, 1/0, yes/no), got {text!r}")
+    raise ValueError(f"{name} expects a boolean (true/false, 1/0, yes/no), got {text!r}")
 
 
-def _scalar(text: str, base: type) -> Any:
+def _scalar(text: str, base: type, name: str) -> Any:
     text = text.strip()
     if base is bool:
-        return parse_bool(text)
+        return parse_bool(text, name)
     if base is int:
         if not re.fullmatch(r"[+-]?\d+", text):
-            raise ValueError(f"expected an integer, got {text!r}")
+            raise ValueError(f"{name} expects an integer, got {text!r}")
         return int(text)
     if base is float:
         try:
             return float(text)
         except ValueError:
-            raise ValueError(f"expected a number, got {text!r}") from None
+            raise ValueError(f"{name} expects a number, got {text!r}") from None
     return text
 
 
-def convert(text: str, kind: FieldType) -> Any:
+def convert(text: str, kind: FieldType, name: str = "value") -> Any:
     """One string to a value of ``kind``: ``"8"`` -> 8, ``"no"`` -> False, ``"0.1 0.2 0.3"`` -> (0.1, 0.2, 0.3).
 
     Sequence items are separated by commas and/or whitespace (brackets are allowed around them); an optional
-    field takes ``none``/``null``. Raises ``ValueError`` with the expected type and the valid choices.
+    field takes ``none``/``null``. Raises ``ValueError`` naming ``name``, the expected type or the valid choices.
     """
     if kind.optional and str(text).strip().lower() in NONE_WORDS:
         return None
     if kind.count is None:
-        value = _scalar(str(text), kind.base)
-        check_choices(value, kind)
-        return value
+        return check_choices(_scalar(str(text), kind.base, name), kind, name)
     items = [item for item in re.split(r"[,\s]+", str(text).strip().strip("()[]")) if item]
     if isinstance(kind.count, int) and len(items) != kind.count:
-        raise ValueError(f"expected {kind.count} values, got {len(items)} in {text!r}")
+        raise ValueError(f"{name} expects {kind.count} values, got {len(items)} in {text!r}")
     if not items:
-        raise ValueError(f"expected at least one value, got {text!r}")
-    values = [_scalar(item, kind.base) for item in items]
-    for value in values:
-        check_choices(value, kind)
-    return kind.container(values)
+        raise ValueError(f"{name} expects at least one value, got {text!r}")
+    return kind.container(check_choices(_scalar(item, kind.base, name), kind, name) for item in items)
 
 
-def check_choices(value: Any, kind: FieldType) -> None:
+def check_choices(value: Any, kind: FieldType, name: str = "value") -> Any:
+    """``value`` if ``kind`` has no choices or it is one of them, else a ``ValueError`` listing them."""
     if kind.choices is not None and value not in kind.choices:
-        raise ValueError(f"{value!r} is not one of: {', '.join(map(str, kind.choices))}")
+        raise ValueError(f"unknown {name} {value!r}; valid: {', '.join(map(str, kind.choices))}")
+    return value
 
 
-def check_value(value: Any, kind: FieldType) -> Any:
+def check_value(value: Any, kind: FieldType, name: str = "value") -> Any:
     """A typed value (from Python code, not a string) checked against ``kind``; returns it normalised
     (``numpy`` integers -> ``int``, ints -> ``float`` for float fields, lists -> tuples for tuple fields).
     Strings are accepted for str fields, and ``os.PathLike`` too (paths are kept as given)."""
     if value is None:
         if kind.optional:
             return None
-        raise ValueError("None is not allowed here")
+        raise ValueError(f"{name} must not be None")
     if kind.count is not None:
         if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
-            raise ValueError(f"expected a sequence of {kind.base.__name__}, got {value!r}")
-        items = [check_value(item, dataclasses.replace(kind, count=None, container=None, optional=False))
-                 for item in value]
+            raise ValueError(f"{name} expects a sequence of {kind.base.__name__}, got {value!r}")
+        item = dataclasses.replace(kind, count=None, container=None, optional=False)
+        items = [check_value(v, item, name) for v in value]
         if isinstance(kind.count, int) and len(items) != kind.count:
-            raise ValueError(f"expected {kind.count} values, got {len(items)}")
+            raise ValueError(f"{name} expects {kind.count} values, got {len(items)}")
         return kind.container(items)
     if kind.base is bool:
         if not (isinstance(value, bool) or type(value).__name__ == "bool_"):  # numpy.bool_ without numpy
-            raise ValueError(f"expected a boolean, got {value!r}")
+            raise ValueError(f"{name} expects a boolean, got {value!r}")
         value = bool(value)
     elif kind.base is int:
         if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-            raise ValueError(f"expected an integer, got {value!r}")
+            raise ValueError(f"{name} expects an integer, got {value!r}")
         value = int(value)
     elif kind.base is float:
         if isinstance(value, bool) or not isinstance(value, numbers.Real):
-            raise ValueError(f"expected a number, got {value!r}")
+            raise ValueError(f"{name} expects a number, got {value!r}")
         value = float(value)
     elif not isinstance(value, (str, os.PathLike)):
-        raise ValueError(f"expected a string, got {value!r}")
-    check_choices(value, kind)
-    return value
+        raise ValueError(f"{name} expects a string, got {value!r}")
+    return check_choices(value, kind, name)
 
 
 # ---------------------------------------------------------------------------------------------- argparse

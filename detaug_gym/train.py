@@ -16,7 +16,7 @@ the augmented demos with their labels, dropped to the null token with probabilit
 
 The output folder gets ``model.pt`` (EMA weights), ``config.json``, ``normalization.json`` (what inference
 needs, see :mod:`detaug_gym.models.checkpoint`), plus ``train_state.pt`` (resume) and ``train_log.csv``.
-Load the result with ``FlowPolicy.load(out)``.
+Load the result with ``detaug_gym.policies.load(out)`` (the policy of its method).
 """
 
 from __future__ import annotations

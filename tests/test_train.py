@@ -17,6 +17,7 @@ from detaug_gym import train as train_module
 from detaug_gym.models import CheckpointError, FlowPolicy, load_checkpoint
 from detaug_gym.models.dataset import PlanLayout, WindowDataset, read_demos
 from detaug_gym.models.synthetic import write_synthetic_demos
+from detaug_gym.policies import load
 from detaug_gym.train import TrainConfig, build_network, parse_args, train
 
 TINY = dict(horizon=10, steps_per_token=2, d_model=64, layers=2, heads=4, obs_tokens=1, batch_size=64,
@@ -43,7 +44,7 @@ def test_tiny_model_overfits_and_reproduces_the_data(detaug_run):
     rows = list(csv.DictReader(open(Path(cfg.out) / "train_log.csv")))
     first, last = float(rows[0]["loss"]), float(rows[-1]["loss"])
     assert summary["steps"] == 700 and last < first / 10, (first, last)
-    policy = FlowPolicy.load(cfg.out, seed=0)
+    policy = load(cfg.out, seed=0)
     demos = read_demos(cfg.data)
     layout = PlanLayout()
     spread = np.ptp(np.concatenate([np.c_[layout.state_vector(d.obs), d.actions] for d in demos]), axis=0)
@@ -59,7 +60,7 @@ def test_tiny_model_overfits_and_reproduces_the_data(detaug_run):
 
 def test_null_token_path_and_label_support(detaug_run):
     cfg, _ = detaug_run
-    policy = FlowPolicy.load(cfg.out, label_mode="null", seed=0)
+    policy = FlowPolicy(load_checkpoint(cfg.out), label_mode="null", seed=0)  # plain, not DetAug
     demo = read_demos(cfg.data)[1]
     plans = policy.plan(single_obs(demo, 0), None, num_samples=3)
     assert plans.shape == (3, cfg.horizon, 19) and torch.isfinite(plans).all()
@@ -85,7 +86,7 @@ def test_save_load_roundtrip_gives_identical_outputs(detaug_run):
 
 def test_act_replans_every_n_steps_and_reset_clears_queue(detaug_run):
     cfg, _ = detaug_run
-    policy = FlowPolicy.load(cfg.out, action_steps=4)
+    policy = FlowPolicy(load_checkpoint(cfg.out), action_steps=4)
     calls = []
     original = policy.next_plan
     policy.next_plan = lambda obs: calls.append(1) or original(obs)
@@ -99,14 +100,14 @@ def test_act_replans_every_n_steps_and_reset_clears_queue(detaug_run):
     again = policy.act(single_obs(demo, 0))
     assert len(calls) == 4 and np.array_equal(again, actions[0])  # queue cleared, same seed, same plan
     with pytest.raises(ValueError, match="action_steps"):
-        FlowPolicy.load(cfg.out, action_steps=cfg.horizon + 1)
+        load(cfg.out, action_steps=cfg.horizon + 1)
 
 
 def test_checkpoint_carries_its_replan_period(detaug_run, tmp_path):
     cfg, _ = detaug_run
     assert json.loads((Path(cfg.out) / "config.json").read_text())["policy"] == {"action_steps": 3}
-    assert FlowPolicy.load(cfg.out).action_steps == 3  # the trained-with default
-    assert FlowPolicy.load(cfg.out, action_steps=7).action_steps == 7  # a load overrides it
+    assert load(cfg.out).action_steps == 3  # the trained-with default
+    assert load(cfg.out, action_steps=7).action_steps == 7  # a load overrides it
     legacy = tmp_path / "legacy"
     legacy.mkdir()
     for name in ("model.pt", "normalization.json"):
@@ -114,7 +115,7 @@ def test_checkpoint_carries_its_replan_period(detaug_run, tmp_path):
     config = json.loads((Path(cfg.out) / "config.json").read_text())
     del config["policy"]
     (legacy / "config.json").write_text(json.dumps(config))
-    assert FlowPolicy.load(legacy).action_steps == 10  # no policy section: the paper's N
+    assert load(legacy).action_steps == 10  # no policy section: the paper's N
     with pytest.raises(SystemExit, match="action-steps"):
         train(replace(cfg, out=str(tmp_path / "bad"), action_steps=cfg.horizon + 1))
 
@@ -167,7 +168,7 @@ def test_demogen_policy_reads_obstacle_points(tmp_path):
     cfg = TrainConfig(method="demogen", data=str(data), out=str(tmp_path / "demogen"), steps=5, n_points=32,
                       **dict(TINY, d_model=32))
     train(cfg)
-    policy = FlowPolicy.load(cfg.out, seed=0)
+    policy = load(cfg.out, seed=0)
     assert policy.network.point_encoder is not None and policy.checkpoint.n_points == 32
     obs = single_obs(read_demos(data)[0], 0)
     obs |= {"obstacle_points": np.random.default_rng(0).normal(size=(256, 3)).astype(np.float32),
@@ -203,7 +204,7 @@ def test_adapter_only_finetune_starts_from_base_and_freezes_backbone(tmp_path):
 
 def test_missing_or_corrupt_checkpoint_names_the_train_command(tmp_path, detaug_run):
     with pytest.raises(CheckpointError, match=r"python -m detaug_gym\.train --method base .*--out .*base"):
-        FlowPolicy.load(tmp_path / "policies" / "base" / "spatial")
+        load(tmp_path / "policies" / "base" / "spatial")
     cfg, _ = detaug_run
     broken = tmp_path / "detaug" / "spatial"
     broken.mkdir(parents=True)

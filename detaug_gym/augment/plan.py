@@ -24,7 +24,7 @@ from detaug_gym.augment.arcs import (
     smooth_trapezoid,
     source_profile,
 )
-from detaug_gym.augment.ik import mat_to_quat_xyzw, quat_xyzw_to_mat
+from detaug_gym.augment.ik import quat_xyzw_to_mat
 from detaug_gym.augment.segment import Transit
 
 
@@ -192,8 +192,3 @@ def splice_transits(pos: np.ndarray, quat: np.ndarray, command: np.ndarray,
 def rotations(quats: np.ndarray) -> np.ndarray:
     """(N, 4) xyzw -> (N, 3, 3)."""
     return np.stack([quat_xyzw_to_mat(q) for q in quats])
-
-
-def quats_of(rots: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) -> (N, 4) xyzw."""
-    return np.stack([mat_to_quat_xyzw(r) for r in rots])

@@ -1,8 +1,11 @@
 """Flow-matching DiT policies: network blocks, flow matching, data windows, checkpoints and inference.
 
->>> from detaug_gym.models import FlowPolicy
->>> policy = FlowPolicy.load("policies/base/spatial")      # made by python -m detaug_gym.train
+>>> from detaug_gym.models import FlowPolicy, load_checkpoint
+>>> policy = FlowPolicy(load_checkpoint("policies/base/spatial"))   # made by python -m detaug_gym.train
 >>> policy.reset(seed=0); action = policy.act(obs)
+
+To run a trained method use ``detaug_gym.policies.load(path)`` (the class from the checkpoint's method) or
+``detaug_gym.policies.make_policy(name, checkpoint=path)``.
 """
 
 from detaug_gym.models.checkpoint import Checkpoint, CheckpointError, LabelSupport, load_checkpoint

@@ -29,14 +29,15 @@ the final gripper command (the grip is kept, not released). So the model learns 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 import torch
 
+from detaug_gym.data.dataset import Demo, load
 from detaug_gym.models.normalize import Normalizer
 
 PLAN_STATE_KEYS = ("robot_joint_pos", "gripper_qpos", "eef_pos")
@@ -44,7 +45,6 @@ OBS_KEYS = ("robot_joint_pos", "robot_joint_vel", "gripper_qpos", "eef_pos", "ee
             "object_poses", "object_mask", "task_id", "object_rel_pos")
 DERIVED_KEYS = {"object_rel_pos": ("object_poses", "eef_pos", "object_mask")}  # computed, not stored
 ACTION_DIM = 7
-QUAT_KEYS = {"eef_quat": None, "object_poses": slice(3, 7)}  # where a key holds xyzw quaternions
 
 
 # ---------------------------------------------------------------------------------------------- features
@@ -141,42 +141,19 @@ class PlanLayout:
 
 
 # ---------------------------------------------------------------------------------------------- reading
-@dataclass
-class Demo:
-    """One demonstration in memory."""
-
-    name: str
-    actions: np.ndarray  # (T, 7)
-    obs: dict[str, np.ndarray]  # key -> (T, ...)
-    label: np.ndarray | None = None  # (L,)
-    obstacle_points: np.ndarray | None = None  # (P, 3)
-    attrs: dict = field(default_factory=dict)
-
-    @property
-    def length(self) -> int:
-        return int(self.actions.shape[0])
-
-
-def _demo_order(name: str) -> tuple[int, str]:
-    tail = name.rsplit("_", 1)[-1]
-    return (int(tail), name) if tail.isdigit() else (1 << 30, name)
-
-
 def read_demos(path: str | Path, obs_keys: tuple[str, ...] = OBS_KEYS) -> list[Demo]:
-    """Read every ``data/demo_<i>`` of a demonstration HDF5, keeping the keys the policies need.
+    """Read every ``data/demo_<i>`` of a demonstration HDF5 through :func:`detaug_gym.data.load` (which also
+    maps LIBERO's own files), keeping what the policies need.
 
-    Uses the project's reader :func:`detaug_gym.data.load` (which also maps LIBERO's own files) when it is
-    available, and a plain h5py reader of the same layout otherwise.
+    Returns:
+        :class:`detaug_gym.data.Demo` s with float32 ``actions`` (T, 7), only the stored observation keys that
+        ``obs_keys`` are computed from, ``label`` (L,) and ``obstacle_points`` (P, 3) as float32 (or None);
+        the simulator ``states`` are dropped (``(0, 0)``: training never reads them).
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no demonstration file at {path}")
-    try:
-        from detaug_gym.data import load
-    except ImportError:
-        raw = _read_h5(path)
-    else:
-        raw = [Demo(d.name, d.actions, d.obs, d.label, d.obstacle_points, dict(d.attrs)) for d in load(path).demos]
+    raw = load(path).demos
     if not raw:
         raise ValueError(f"{path} holds no demos")
     demos = []
@@ -187,24 +164,9 @@ def read_demos(path: str | Path, obs_keys: tuple[str, ...] = OBS_KEYS) -> list[D
             raise ValueError(f"{path}:data/{d.name} lacks obs keys {missing} (the policies read {list(stored)})")
         label = None if d.label is None else np.asarray(d.label, np.float32).reshape(-1)
         points = None if d.obstacle_points is None else np.asarray(d.obstacle_points, np.float32).reshape(-1, 3)
-        demos.append(Demo(d.name, np.asarray(d.actions, np.float32), {k: np.asarray(d.obs[k]) for k in stored},
-                          label, points, d.attrs))
-    return demos
-
-
-def _read_h5(path: Path) -> list[Demo]:
-    demos = []
-    with h5py.File(path, "r") as f:
-        if "data" not in f:
-            raise ValueError(f"{path} has no 'data' group; expected data/demo_<i>/{{actions, obs/...}}")
-        for name in sorted(f["data"].keys(), key=_demo_order):
-            g = f["data"][name]
-            if "actions" not in g:
-                raise ValueError(f"{path}:data/{name} has no actions")
-            obs = {k: np.asarray(v) for k, v in g["obs"].items()} if "obs" in g else {}
-            label = np.asarray(g["label"]) if "label" in g else None
-            points = np.asarray(g["obstacle_points"]) if "obstacle_points" in g else None
-            demos.append(Demo(name, np.asarray(g["actions"]), obs, label, points, dict(g.attrs)))
+        demos.append(dataclasses.replace(d, actions=np.asarray(d.actions, np.float32), states=np.zeros((0, 0)),
+                                         obs={k: np.asarray(d.obs[k]) for k in stored}, label=label,
+                                         obstacle_points=points))
     return demos
 
 
@@ -256,13 +218,13 @@ class WindowDataset:
         offset = 0
         for i, demo in enumerate(demos):
             states = self.layout.state_vector(demo.obs)
-            if demo.actions.shape != (demo.length, self.layout.action_dim) or len(states) != demo.length:
+            if demo.actions.shape != (len(demo), self.layout.action_dim) or len(states) != len(demo):
                 raise ValueError(f"{demo.name}: actions {demo.actions.shape} and obs of {len(states)} steps")
-            raw = pad_window(states, demo.actions, 0, demo.length + horizon - 1)
+            raw = pad_window(states, demo.actions, 0, len(demo) + horizon - 1)
             rows.append(raw)
             obs.append(observation_vector(demo.obs, self.obs_keys))
-            starts.append(offset + np.arange(demo.length))
-            demo_of_start.append(np.full(demo.length, i))
+            starts.append(offset + np.arange(len(demo)))
+            demo_of_start.append(np.full(len(demo), i))
             offset += len(raw)
         flat_plan = np.concatenate(rows)
         valid = np.concatenate([r[:len(o)] for r, o in zip(rows, obs)])  # unpadded rows fit the stats

@@ -29,8 +29,8 @@ import torch
 from detaug_gym.models.checkpoint import Checkpoint, load_checkpoint
 from detaug_gym.models.dataset import observation_vector
 from detaug_gym.models.flow import Guidance, Inpaint, remaining_steps, sample
+from detaug_gym.policies.options import FlowOptions
 
-LABEL_MODES = ("auto", "zero", "null")
 DEFAULT_ACTION_STEPS = 10  # the paper's replan period N, for checkpoints whose config.json names none
 
 
@@ -66,36 +66,22 @@ class FlowPolicy:
 
     def __init__(self, checkpoint: Checkpoint | str | Path, action_steps: int | None = None, flow_steps: int = 10,
                  label_mode: str = "auto", binarize_gripper: bool = True, seed: int | None = None) -> None:
+        options = FlowOptions(action_steps=action_steps, flow_steps=flow_steps, label_mode=label_mode,
+                              binarize_gripper=binarize_gripper, seed=seed)  # type and range checks
         self.checkpoint = checkpoint if isinstance(checkpoint, Checkpoint) else load_checkpoint(checkpoint)
         self.network = self.checkpoint.network
         self.layout = self.checkpoint.layout
         self.horizon = self.network.config.dit.horizon
-        if action_steps is None:
-            action_steps = self.checkpoint.action_steps or DEFAULT_ACTION_STEPS
+        action_steps = options.action_steps or self.checkpoint.action_steps or DEFAULT_ACTION_STEPS
         if not 1 <= action_steps <= self.horizon:
             raise ValueError(f"action_steps must lie in [1, {self.horizon}], got {action_steps}")
-        if flow_steps < 1:
-            raise ValueError(f"flow_steps must be >= 1, got {flow_steps}")
-        if label_mode not in LABEL_MODES:
-            raise ValueError(f"unknown label_mode {label_mode!r}; valid: {', '.join(LABEL_MODES)}")
-        self.action_steps, self.flow_steps = int(action_steps), int(flow_steps)
-        self.label_mode, self.binarize_gripper = label_mode, binarize_gripper
-        self._default_seed = seed
+        self.action_steps, self.flow_steps = action_steps, options.flow_steps
+        self.label_mode, self.binarize_gripper = options.label_mode, options.binarize_gripper
+        self._default_seed = options.seed
         self._queue: deque[np.ndarray] = deque()
         self._warned_suite = False
         self.generator = torch.Generator()
-        self.reset(seed)
-
-    @classmethod
-    def load(cls, path: str | Path, **options) -> FlowPolicy:
-        """Load a checkpoint folder; a missing or corrupt one raises ``CheckpointError`` naming the train
-        command that makes it."""
-        return cls(load_checkpoint(path), **options)
-
-    @classmethod
-    def from_zoo(cls, method: str, suite: str, **options) -> FlowPolicy:
-        """Load ``policies/<method>/<suite>/``."""
-        return cls.load(zoo_dir(method, suite), **options)
+        self.reset(options.seed)
 
     # ------------------------------------------------------------------ properties
     @property

@@ -61,6 +61,7 @@ import numpy as np
 from detaug_gym.geometry.ellipsoid import min_volume_ellipsoid
 from detaug_gym.geometry.sdf import quat_xyzw_to_matrix
 from detaug_gym.policies.base import make_policy, policy_class
+from detaug_gym.policies.options import AegisOptions
 
 POSITION_SCALE = 0.05  # m per action unit per step (OSC_POSE output_max)
 ROTATION_SCALE = 0.5  # rad per action unit per step
@@ -267,6 +268,8 @@ class AegisPolicy:
         ee_semi_axes: end-effector semi-axes (m) along the grip-site x, y, z axes.
         ee_offset: end-effector centre, m from the grip site towards the wrist.
         **base_options: options of the wrapped policy (``checkpoint``, ``action_steps``, ``seed``, ...).
+
+    AEGIS's own options, their types and ranges are :class:`~detaug_gym.policies.options.AegisOptions`.
     """
 
     @classmethod
@@ -278,11 +281,10 @@ class AegisPolicy:
     def __init__(self, suite: str = "spatial", base: str = "base", alpha: float = 10.0, dt: float = CONTROL_DT,
                  ee_semi_axes: tuple[float, float, float] = EE_SEMI_AXES, ee_offset: float = EE_OFFSET,
                  **base_options) -> None:
-        if base.lower() == "aegis":
-            raise ValueError("AEGIS cannot wrap itself; pass base='base' (or another registered policy)")
-        self.filter = CBFFilter(alpha, dt, EndEffectorEllipsoid(tuple(float(s) for s in ee_semi_axes),
-                                                                float(ee_offset)))
-        self.policy = make_policy(base, suite=suite, **base_options)
+        opts = AegisOptions(suite=suite, base=base, alpha=alpha, dt=dt, ee_semi_axes=ee_semi_axes,
+                            ee_offset=ee_offset)
+        self.filter = CBFFilter(opts.alpha, opts.dt, EndEffectorEllipsoid(opts.ee_semi_axes, opts.ee_offset))
+        self.policy = make_policy(opts.base, suite=opts.suite, **base_options)
         self.diagnostics: list[FilterStep] = []
 
     def reset(self, seed: int | None = None, context=None) -> None:

@@ -19,16 +19,22 @@ the plan from an internal queue and replan when the queue runs dry; ``reset`` cl
 
 Methods register themselves with :func:`register_policy` using a *string* import path, so that
 ``import detaug_gym.policies`` stays light and torch/MuJoCo-heavy modules load only when a policy of
-that kind is made.
+that kind is made. The entry also names the policy's options dataclass (:mod:`detaug_gym.policies.options`),
+so :func:`parse_policy_options` can turn ``name:key=value`` strings into checked, typed options without
+importing the policy.
 """
 
 from __future__ import annotations
 
 import importlib
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
+
+from detaug_gym.config import check_value, config_fields, convert
 
 
 @runtime_checkable
@@ -45,21 +51,31 @@ class Policy(Protocol):
 
 @dataclass(frozen=True)
 class PolicySpec:
-    """A registry entry: ``entry_point`` is ``"module.path:ClassName"``, imported on first use."""
+    """A registry entry: ``entry_point`` is ``"module.path:ClassName"``, imported on first use; ``options``
+    (``"module.path:ClassName"`` of a dataclass, or ``None``) declares the constructor's options."""
 
     name: str
     entry_point: str
     summary: str
+    options: str | None = None
 
 
 _REGISTRY: dict[str, PolicySpec] = {}
 
 
-def register_policy(name: str, entry_point: str, summary: str = "") -> None:
-    """Register a policy class under ``name`` (lower case). Re-registering a name replaces it."""
-    if ":" not in entry_point:
-        raise ValueError(f"entry_point must look like 'package.module:ClassName', got {entry_point!r}")
-    _REGISTRY[name.lower()] = PolicySpec(name.lower(), entry_point, summary)
+def register_policy(name: str, entry_point: str, summary: str = "", options: str | None = None) -> None:
+    """Register a policy class under ``name`` (lower case). Re-registering a name replaces it.
+
+    Args:
+        entry_point: ``"package.module:ClassName"`` of the policy.
+        summary: one line for listings.
+        options: ``"package.module:ClassName"`` of the dataclass of its options (a light module: no torch),
+            used by :func:`parse_policy_options`; ``None`` for a policy that takes none.
+    """
+    for what, path in (("entry_point", entry_point), ("options", options)):
+        if path is not None and ":" not in path:
+            raise ValueError(f"{what} must look like 'package.module:ClassName', got {path!r}")
+    _REGISTRY[name.lower()] = PolicySpec(name.lower(), entry_point, summary, options)
 
 
 def available_policies() -> list[str]:
@@ -67,15 +83,85 @@ def available_policies() -> list[str]:
     return sorted(_REGISTRY)
 
 
-def policy_class(name: str) -> type:
-    """Import and return the class registered under ``name``."""
+def _spec(name: str) -> PolicySpec:
     key = name.lower()
     if key not in _REGISTRY:
         raise KeyError(
             f"unknown policy {name!r}; registered policies: {', '.join(available_policies())}"
         )
-    module_name, class_name = _REGISTRY[key].entry_point.split(":")
-    return getattr(importlib.import_module(module_name), class_name)
+    return _REGISTRY[key]
+
+
+def _import(path: str) -> Any:
+    module_name, attr = path.split(":")
+    return getattr(importlib.import_module(module_name), attr)
+
+
+def policy_class(name: str) -> type:
+    """Import and return the class registered under ``name``."""
+    return _import(_spec(name).entry_point)
+
+
+def policy_options_class(name: str) -> type | None:
+    """The options dataclass registered with ``name`` (imports only its light module), or ``None``."""
+    spec = _spec(name)
+    return None if spec.options is None else _import(spec.options)
+
+
+def parse_policy_options(name: str, raw: Mapping[str, Any]) -> dict[str, Any]:
+    """Check and convert a policy's options without building it: ``("detaug", {"k": "8", "latch": "no"})``
+    -> ``{"k": 8, "latch": False}``.
+
+    String values are converted by the declared field types (:func:`detaug_gym.config.convert`: ints
+    reject ``"2.5"``, bools take true/false, 1/0, yes/no in any case, ``none`` for optional fields, tuple
+    items separated by spaces); other values must already have the declared type. The options dataclass
+    is then built, so its ``__post_init__`` range checks run too. ``suite`` (which the bench passes to every
+    policy) is accepted even where the dataclass has no such field. A wrapping policy (AEGIS, ``WRAPS``)
+    hands the options that are not its own to the policy it wraps, and those are checked the same way.
+
+    Returns:
+        the given options only, converted (pass them on with ``make_policy(name, suite=..., **options)``).
+    Raises:
+        KeyError: ``name`` (or a wrapped policy's name) is not registered.
+        ValueError: an unknown key (the message lists the valid ones), a value of the wrong type, or one
+            that fails a range check.
+    """
+    cls = policy_options_class(name)
+    if cls is None:
+        if set(raw) - {"suite"}:
+            raise ValueError(f"{name} declares no options (register_policy(..., options=...)); got "
+                             f"{', '.join(sorted(raw))}")
+        return dict(raw)
+    fields = config_fields(cls)
+    own = {key: value for key, value in raw.items() if key in fields or key == "suite"}
+    rest = {key: value for key, value in raw.items() if key not in own}
+    parsed = {key: _convert_option(name, key, value, fields[key][1]) for key, value in own.items() if key in fields}
+    wrapped = parsed.get(cls.WRAPS, fields[cls.WRAPS][0].default) if cls.WRAPS else None
+    if wrapped is not None:
+        _spec(wrapped)  # a KeyError listing the registered names
+    if rest:
+        inner = None if wrapped is None else policy_options_class(wrapped)
+        inner_names = [] if inner is None else list(config_fields(inner))
+        unknown = [key for key in rest if key not in inner_names]
+        if unknown:
+            valid = ", ".join(sorted(fields))
+            if wrapped is not None:
+                valid += f"; or an option of the wrapped {wrapped}: {', '.join(sorted(inner_names)) or 'none'}"
+            raise ValueError(f"unknown option {unknown[0]!r} for {name}; valid: {valid}")
+    cls(**parsed)  # the range checks of __post_init__
+    if rest:
+        inner_raw = dict(rest, **({"suite": own["suite"]} if "suite" in own else {}))
+        parsed.update({k: v for k, v in parse_policy_options(wrapped, inner_raw).items() if k != "suite"})
+    if "suite" in own and "suite" not in fields:
+        parsed["suite"] = str(own["suite"])
+    return parsed
+
+
+def _convert_option(policy: str, key: str, value: Any, kind) -> Any:
+    try:
+        return convert(value, kind, key) if isinstance(value, str) else check_value(value, kind, key)
+    except ValueError as err:
+        raise ValueError(f"{policy}: {err}") from None
 
 
 def make_policy(name: str, **kwargs: Any) -> Policy:
@@ -85,3 +171,20 @@ def make_policy(name: str, **kwargs: Any) -> Policy:
         KeyError: ``name`` is not registered; the message lists the registered names.
     """
     return policy_class(name)(**kwargs)
+
+
+def load(path: str | Path, **options: Any) -> Policy:
+    """The policy for a trained checkpoint folder (``policies/<method>/<suite>/``): the registered policy of the
+    method it was trained with (``base``, ``detaug`` or ``demogen``), built with ``options``. The one loader;
+    ``make_policy(name, checkpoint=path)`` builds a chosen method (``cape``, ``aegis``) on a folder instead.
+
+    Raises:
+        CheckpointError: no readable checkpoint at ``path`` (the message names the train command).
+    """
+    from detaug_gym.models.checkpoint import CheckpointError, read_config
+
+    method = read_config(path).get("method")
+    if not isinstance(method, str) or method.lower() not in _REGISTRY:
+        raise CheckpointError(f"{path} was trained with method {method!r}, which no registered policy loads; "
+                              f"registered policies: {', '.join(available_policies())}")
+    return make_policy(method, checkpoint=str(path), **options)

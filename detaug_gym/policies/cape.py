@@ -41,8 +41,8 @@ from detaug_gym.geometry.robot_points import EEF_SPHERE_RADIUS, RobotGeometry, R
 from detaug_gym.geometry.sdf import ObstacleSDF, obstacle_sdf, quat_xyzw_to_matrix
 from detaug_gym.models.flow import Guidance
 from detaug_gym.models.policy import FlowPolicy, load_checkpoint, shift_plan, zoo_dir
+from detaug_gym.policies.options import CapeOptions
 
-GUIDE_TARGETS = ("both", "states", "actions")
 POSITION_SCALE = 0.05  # m per action unit (OSC_POSE)
 
 
@@ -75,6 +75,8 @@ class CapePolicy(FlowPolicy):
         action_gain: achieved fraction of the commanded displacement per step (``actions`` term).
         track_cost: record the cost of every executed plan in ``diagnostics`` (one more FK pass per replan).
         **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``flow_steps``, ``seed``, ...).
+
+    Every option, its type and its range are :class:`~detaug_gym.policies.options.CapeOptions`.
     """
 
     zoo_method = "base"
@@ -86,19 +88,21 @@ class CapePolicy(FlowPolicy):
                  track_cost: bool = False, **options) -> None:
         if "action_steps" in options:
             raise ValueError("CAPE executes prefix_steps actions per plan; pass prefix_steps, not action_steps")
-        _check_options(t_start, refine_steps, guidance_scale, guidance_t_min, sphere_radius, margin, guide,
-                       action_gain)
-        ckpt = load_checkpoint(checkpoint or zoo_dir("base", suite))
-        if not 1 <= prefix_steps < ckpt.network.config.dit.horizon:
-            raise ValueError(f"prefix_steps must lie in [1, horizon), got {prefix_steps}")
-        super().__init__(ckpt, action_steps=prefix_steps, **options)
-        self.t_start, self.refine_steps = float(t_start), refine_steps
-        self.guidance_scale, self.guidance_t_min = float(guidance_scale), float(guidance_t_min)
-        self.margin, self.guide, self.action_gain = float(margin), guide, float(action_gain)
+        opts = CapeOptions.from_kwargs(
+            suite=suite, checkpoint=checkpoint, prefix_steps=prefix_steps, t_start=t_start, refine_steps=refine_steps,
+            guidance_scale=guidance_scale, guidance_t_min=guidance_t_min, sphere_radius=sphere_radius, margin=margin,
+            guide=guide, action_gain=action_gain, track_cost=track_cost, **options)
+        ckpt = load_checkpoint(opts.checkpoint or zoo_dir("base", opts.suite))
+        if not opts.prefix_steps < ckpt.network.config.dit.horizon:
+            raise ValueError(f"prefix_steps must lie in [1, horizon), got {opts.prefix_steps}")
+        super().__init__(ckpt, action_steps=opts.prefix_steps, **opts.flow_policy_kwargs())
+        self.t_start, self.refine_steps = opts.t_start, opts.refine_steps
+        self.guidance_scale, self.guidance_t_min = opts.guidance_scale, opts.guidance_t_min
+        self.margin, self.guide, self.action_gain = opts.margin, opts.guide, opts.action_gain
         panda = RobotGeometry.panda()
-        spheres = RobotSpheres.end_effector(panda.kinematics, radius=float(sphere_radius))
+        spheres = RobotSpheres.end_effector(panda.kinematics, radius=opts.sphere_radius)
         self.robot = RobotGeometry(panda.kinematics, panda.points, spheres)
-        self.track_cost = track_cost
+        self.track_cost = opts.track_cost
         self.diagnostics: list[CapeStep] = []
         self._previous: torch.Tensor | None = None
         self._shape: tuple[np.ndarray, ObstacleSDF] | None = None  # last obstacle (local points, SDF)
@@ -180,19 +184,3 @@ class CapePolicy(FlowPolicy):
             hand = (centres - fk.eef_position[..., None, :]).detach()  # sphere layout from the FK orientation
             total = total + sphere_cost(hand + path[..., None, :], radii, sdf, self.margin)
         return total
-
-
-def _check_options(t_start, refine_steps, scale, t_min, radius, margin, guide, gain) -> None:
-    checks = (
-        (0.0 < t_start < 1.0, f"t_start must lie in (0, 1), got {t_start}"),
-        (refine_steps is None or refine_steps >= 1, f"refine_steps must be >= 1, got {refine_steps}"),
-        (scale >= 0.0, f"guidance_scale must be >= 0, got {scale}"),
-        (0.0 <= t_min <= 1.0, f"guidance_t_min must lie in [0, 1], got {t_min}"),
-        (radius > 0.0, f"sphere_radius must be > 0, got {radius}"),
-        (margin >= 0.0, f"margin must be >= 0, got {margin}"),
-        (guide in GUIDE_TARGETS, f"unknown guide {guide!r}; valid: {', '.join(GUIDE_TARGETS)}"),
-        (0.0 < gain <= 1.0, f"action_gain must lie in (0, 1], got {gain}"),
-    )
-    for ok, message in checks:
-        if not ok:
-            raise ValueError(message)

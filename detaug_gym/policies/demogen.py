@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from detaug_gym.models.policy import FlowPolicy, load_checkpoint, zoo_dir
+from detaug_gym.policies.options import DemoGenOptions
 
 
 class DemoGenPolicy(FlowPolicy):
@@ -19,14 +20,17 @@ class DemoGenPolicy(FlowPolicy):
     Args:
         suite: zoo suite folder.
         checkpoint: a checkpoint folder instead of the zoo's.
-        **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``action_steps``, ``flow_steps``, ...).
+        **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``action_steps``, ``flow_steps``, ...);
+            all are :class:`~detaug_gym.policies.options.DemoGenOptions`.
     """
 
     zoo_method = "demogen"
 
     def __init__(self, suite: str = "spatial", checkpoint: str | Path | None = None, **options) -> None:
-        loaded = load_checkpoint(checkpoint or zoo_dir("demogen", suite))
+        opts = DemoGenOptions.from_kwargs(suite=suite, checkpoint=checkpoint, **options)
+        path = opts.checkpoint or zoo_dir("demogen", opts.suite)
+        loaded = load_checkpoint(path)
         if loaded.method != "demogen":
-            raise ValueError(f"{checkpoint or zoo_dir('demogen', suite)} holds a {loaded.method!r} checkpoint; "
+            raise ValueError(f"{path} holds a {loaded.method!r} checkpoint; "
                              "the demogen policy needs one trained with --method demogen")
-        super().__init__(loaded, **options)
+        super().__init__(loaded, **opts.flow_policy_kwargs())

@@ -28,10 +28,7 @@ import torch
 
 from detaug_gym.models.flow import Guidance
 from detaug_gym.models.policy import FlowPolicy, load_checkpoint, zoo_dir
-
-MODES = ("select", "null_guidance", "guided_select", "null_select")
-LABEL_SOURCES = ("random", "zero")
-COSTS = ("penetration", "clearance")
+from detaug_gym.policies.options import DetAugOptions
 
 
 @dataclass
@@ -54,10 +51,12 @@ class DetAugPolicy(FlowPolicy):
         latch: keep the first selected label for the whole episode (the paper found this halves clean success).
         labels: ``"random"`` (DetAug) or ``"zero"`` (the unbent label for all K candidates).
         cost: ``"penetration"`` (paper) or ``"clearance"``.
-        mode: one of :data:`MODES` (selection vs guidance ablation).
+        mode: one of :data:`~detaug_gym.policies.options.MODES` (selection vs guidance ablation).
         guidance_scale, guidance_t_min: lambda and chi of the guidance variants.
         held_object: also score the object in the hand (:func:`detaug_gym.geometry.held_object_cost`).
         action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
+
+    Every option, its type and its range are :class:`~detaug_gym.policies.options.DetAugOptions`.
     """
 
     zoo_method = "detaug"
@@ -66,21 +65,20 @@ class DetAugPolicy(FlowPolicy):
                  labels: str = "random", cost: str = "penetration", mode: str = "select",
                  guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,
                  **options) -> None:
-        ckpt = load_checkpoint(checkpoint or zoo_dir("detaug", suite))
+        opts = DetAugOptions.from_kwargs(suite=suite, checkpoint=checkpoint, k=k, latch=latch, labels=labels,
+                                         cost=cost, mode=mode, guidance_scale=guidance_scale,
+                                         guidance_t_min=guidance_t_min, held_object=held_object, **options)
+        ckpt = load_checkpoint(opts.checkpoint or zoo_dir("detaug", opts.suite))
         if not ckpt.network.config.dit.label_dim:
             raise ValueError(f"{ckpt.path} was trained without labels ({ckpt.method!r}); DetAug needs a "
                              "checkpoint from `python -m detaug_gym.train --method detaug`")
-        for name, value, valid in (("labels", labels, LABEL_SOURCES), ("cost", cost, COSTS), ("mode", mode, MODES)):
-            if value not in valid:
-                raise ValueError(f"unknown {name} {value!r}; valid: {', '.join(valid)}")
-        if k < 1:
-            raise ValueError(f"k must be >= 1, got {k}")
-        if labels == "random" and len(ckpt.labels.bank) == 0:
+        if opts.labels == "random" and len(ckpt.labels.bank) == 0:
             raise ValueError(f"{ckpt.path} stores no training labels to sample from")
-        super().__init__(ckpt, **options)
-        self.k, self.latch, self.label_source, self.cost_kind, self.mode = int(k), latch, labels, cost, mode
-        self.guidance_scale, self.guidance_t_min = guidance_scale, guidance_t_min
-        self.held_object = bool(held_object)
+        super().__init__(ckpt, **opts.flow_policy_kwargs())
+        self.k, self.latch, self.label_source, self.cost_kind, self.mode = (opts.k, opts.latch, opts.labels,
+                                                                            opts.cost, opts.mode)
+        self.guidance_scale, self.guidance_t_min = opts.guidance_scale, opts.guidance_t_min
+        self.held_object = opts.held_object
         self.diagnostics: list[ReplanDiagnostics] = []
         self._latched: np.ndarray | None = None
         self._rng = np.random.default_rng()

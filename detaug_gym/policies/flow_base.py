@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from detaug_gym.models.policy import FlowPolicy, load_checkpoint, zoo_dir
+from detaug_gym.policies.options import FlowOptions
 
 
 class BaseFlowPolicy(FlowPolicy):
@@ -13,20 +14,12 @@ class BaseFlowPolicy(FlowPolicy):
     Args:
         suite: zoo suite folder.
         checkpoint: a checkpoint folder instead of the zoo's.
-        **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``action_steps``, ``flow_steps``, ...).
+        **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``action_steps``, ``flow_steps``, ...);
+            all are :class:`~detaug_gym.policies.options.FlowOptions`.
     """
 
     zoo_method = "base"
 
     def __init__(self, suite: str = "spatial", checkpoint: str | Path | None = None, **options) -> None:
-        super().__init__(load_checkpoint(checkpoint or zoo_dir("base", suite)), **options)
-
-
-def load(path: str | Path, **options) -> FlowPolicy:
-    """The policy for a checkpoint folder: DetAug selection for label checkpoints, else a plain flow policy."""
-    checkpoint = load_checkpoint(path)
-    if checkpoint.method == "detaug":
-        from detaug_gym.policies.detaug import DetAugPolicy
-
-        return DetAugPolicy(checkpoint=str(path), **options)
-    return FlowPolicy(checkpoint, **options)
+        opts = FlowOptions.from_kwargs(suite=suite, checkpoint=checkpoint, **options)
+        super().__init__(load_checkpoint(opts.checkpoint or zoo_dir("base", opts.suite)), **opts.flow_policy_kwargs())

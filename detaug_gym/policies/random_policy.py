@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from detaug_gym.policies.options import RandomOptions
+
 ACTION_DIM = 7
 
 
@@ -13,14 +15,14 @@ class RandomPolicy:
     Args:
         scale: bound on the arm part of the action (``(0, 1]``).
         seed: default seed used when ``reset`` is called without one.
+        suite: accepted (the bench passes it to every policy) and ignored.
     """
 
-    def __init__(self, scale: float = 1.0, seed: int | None = None, **_: object) -> None:
-        if not 0.0 < scale <= 1.0:
-            raise ValueError(f"scale must lie in (0, 1], got {scale}")
-        self.scale = float(scale)
-        self._default_seed = seed
-        self._rng = np.random.default_rng(seed)
+    def __init__(self, scale: float = 1.0, seed: int | None = None, suite: str | None = None) -> None:
+        options = RandomOptions(scale=scale, seed=seed)
+        self.scale = options.scale
+        self._default_seed = options.seed
+        self._rng = np.random.default_rng(options.seed)
 
     def reset(self, seed: int | None = None, context=None) -> None:
         self._rng = np.random.default_rng(self._default_seed if seed is None else seed)

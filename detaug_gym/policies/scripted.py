@@ -35,6 +35,7 @@ from functools import partial
 
 import numpy as np
 
+from detaug_gym.policies.options import ScriptedOptions
 from detaug_gym.policies.scripted_math import (
     bezier,
     mat_to_rotvec,
@@ -134,18 +135,16 @@ class ScriptedExpert:
             episode context's task (``reset(context=...)``), else recognised from the first observation.
         variation: scale of the per-demo variation (0 = the same nominal motion every episode).
         seed: default seed when ``reset`` gets none.
+        suite: accepted (the bench passes it to every policy) and ignored.
     """
 
     def __init__(self, task: str | None = None, variation: float = 1.0, seed: int | None = None,
-                 **_: object) -> None:
-        if task is not None and task not in RECIPES:
-            raise ValueError(f"unknown task recipe {task!r}; valid: {', '.join(sorted(RECIPES))}")
-        if variation < 0:
-            raise ValueError(f"variation must be >= 0, got {variation}")
-        self.task = task
-        self.variation = float(variation)
-        self._default_seed = seed
-        self.reset(seed)
+                 suite: str | None = None) -> None:
+        options = ScriptedOptions(task=task, variation=variation, seed=seed)
+        self.task = options.task
+        self.variation = options.variation
+        self._default_seed = options.seed
+        self.reset(options.seed)
 
     # ------------------------------------------------------------------ policy protocol
     def reset(self, seed: int | None = None, context=None) -> None:
