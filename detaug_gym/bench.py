@@ -134,17 +134,27 @@ def _literal(value: str):
         return value.strip()
 
 
-def parse_method(spec: str) -> tuple[str, dict]:
-    """``"detaug:k=8,labels=zero"`` -> ``("detaug", {"k": 8, "labels": "zero"})``; values are Python
-    literals where they parse as one (``8``, ``True``, ``0.5``) and strings otherwise."""
+def split_method(spec: str) -> tuple[str, dict[str, str]]:
+    """``"detaug:k=8,labels=zero"`` -> ``("detaug", {"k": "8", "labels": "zero"})``: the name and the raw
+    option strings (:func:`parse_method` converts them)."""
     name, _, options = spec.partition(":")
-    kwargs = {}
+    raw = {}
     for item in filter(None, options.split(",")):
         key, eq, value = item.partition("=")
         if not eq or not key.strip().isidentifier():
             raise SystemExit(f"bad method option {item!r} in {spec!r}; write name:key=value[,key=value]")
-        kwargs[key.strip()] = _literal(value)
-    return name.lower(), kwargs
+        raw[key.strip()] = value.strip()
+    return name.lower(), raw
+
+
+def parse_method(spec: str) -> tuple[str, dict]:
+    """``"detaug:k=8,latch=false"`` -> ``("detaug", {"k": 8, "latch": False})``: options converted and checked
+    against the policy's declared option types and ranges (:func:`detaug_gym.policies.parse_policy_options`),
+    without building the policy. ``ValueError`` / ``KeyError`` say what is wrong and what is valid."""
+    from detaug_gym.policies import parse_policy_options
+
+    name, raw = split_method(spec)
+    return name, parse_policy_options(name, raw)
 
 
 def parse_env_kwargs(items: list[str]) -> dict:
@@ -161,14 +171,19 @@ def parse_env_kwargs(items: list[str]) -> dict:
 def check_methods(methods: list[str], suites: list[str]) -> None:
     """Fail before any episode runs, with one line per problem: an unknown method, options its policy rejects,
     or a checkpoint missing for one of the suites."""
-    from detaug_gym.policies import available_policies, make_policy
+    from detaug_gym.policies import available_policies
 
     problems = []
     for spec in methods:
-        name, options = parse_method(spec)
+        name, _ = split_method(spec)
         if name not in available_policies():
             problems.append(f"unknown method {spec!r}; registered policies: {', '.join(available_policies())} "
                             "(options go after a colon: detaug:k=8)")
+            continue
+        try:
+            name, options = parse_method(spec)
+        except (ValueError, KeyError) as exc:
+            problems.append(f"method {spec!r}: {exc.args[0] if exc.args else exc}")
             continue
         for suite in suites:
             try:
@@ -183,11 +198,6 @@ def check_methods(methods: list[str], suites: list[str]) -> None:
                 continue
             for path in method_checkpoints(name, options, suite):
                 problems += [f"method {spec!r} on suite {suite!r}: {p}" for p in _checkpoint_problem(path)]
-        if options and not problems:
-            try:
-                make_policy(name, suite=suites[0], **options)
-            except (TypeError, ValueError, KeyError) as exc:
-                problems.append(f"method {spec!r}: {exc}")
     if problems:
         raise SystemExit("cannot run:\n  " + "\n  ".join(problems))
 
