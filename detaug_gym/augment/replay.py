@@ -36,8 +36,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from detaug_gym.augment.feasibility import grip_frame_position
-from detaug_gym.augment.ik import quat_xyzw_to_mat, rotation_error
 from detaug_gym.augment.plan import Plan
+from detaug_gym.rotations import quat_xyzw_to_mat, rotation_error, rotvec_to_mat
 
 POS_SCALE = 0.05  # m per unit action, robosuite OSC_POSE output_max
 ROT_SCALE = 0.5  # rad per unit action
@@ -99,22 +99,12 @@ def source_goal_action(pos: np.ndarray, rot: np.ndarray, src_pos: np.ndarray, sr
     """The action (7,) whose OSC goal equals the goal the source's ``src_action`` set from its own pose."""
     src_action = np.clip(np.asarray(src_action, dtype=np.float64), -1.0, 1.0)
     goal_pos = src_pos + POS_SCALE * src_action[:3]
-    goal_rot = axis_angle_matrix(ROT_SCALE * src_action[3:6]) @ src_rot
+    goal_rot = rotvec_to_mat(ROT_SCALE * src_action[3:6]) @ src_rot
     action = np.zeros(7)
     action[:3] = np.clip((goal_pos - pos) / POS_SCALE, -1.0, 1.0)
     action[3:6] = np.clip(rotation_error(goal_rot, rot) / ROT_SCALE, -1.0, 1.0)
     action[6] = src_action[6]
     return action
-
-
-def axis_angle_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (Rodrigues)."""
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-12:
-        return np.eye(3)
-    k = rotvec / angle
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * kx @ kx
 
 
 def distance_to_polyline(point: np.ndarray, poly: np.ndarray) -> float:

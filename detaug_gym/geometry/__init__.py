@@ -31,7 +31,7 @@ _EXPORTS = {
     "kinematics": ("KinematicsResult", "PandaKinematics", "panda_model"),
     "robot_points": ("RobotGeometry", "RobotSpheres", "RobotSurfacePoints"),
     "sdf": ("NO_OBSTACLE_DISTANCE", "ObstacleSDF", "SDFGrid", "bake_sdf_grid", "convex_hull",
-            "exact_signed_distance", "obstacle_sdf", "quat_xyzw_to_matrix"),
+            "exact_signed_distance", "obstacle_sdf"),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 __all__ = sorted(_WHERE)

@@ -29,6 +29,8 @@ import numpy as np
 import torch
 import trimesh
 
+from detaug_gym.rotations import quat_xyzw_to_mat
+
 GRID_SPACING = 0.01  # m; 2 cm cells leave the 2.8 cm thick book with almost no interior nodes
 GRID_PADDING = 0.10  # m beyond the hull's box; covers every clearance margin in use
 NO_OBSTACLE_DISTANCE = 10.0  # m, returned everywhere when the observation has no obstacle (mask 0)
@@ -203,7 +205,7 @@ def obstacle_sdf(obs: dict[str, np.ndarray], spacing: float = GRID_SPACING,
     if float(np.asarray(obs["obstacle_mask"]).reshape(-1)[0]) < 0.5:
         return ObstacleSDF(None)
     pose = np.asarray(obs["obstacle_pose"], np.float64)
-    rotation = quat_xyzw_to_matrix(pose[3:7])
+    rotation = quat_xyzw_to_mat(pose[3:7])
     local = (np.asarray(obs["obstacle_points"], np.float64) - pose[:3]) @ rotation
     # Key on the shape in its own frame at 1 mm: float32 observations jitter far below that.
     key = (hashlib.sha1(np.round(local, 3).tobytes()).hexdigest(), float(spacing), float(padding))
@@ -218,12 +220,3 @@ def obstacle_sdf(obs: dict[str, np.ndarray], spacing: float = GRID_SPACING,
         _grid_cache.move_to_end(key)
     return ObstacleSDF(cached[1], rotation, pose[:3], cached[0])
 
-
-def quat_xyzw_to_matrix(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrix ``(3, 3)`` of a quaternion in xyzw order (normalised first)."""
-    x, y, z, w = np.asarray(quat, np.float64) / np.linalg.norm(quat)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])

@@ -59,8 +59,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from detaug_gym.geometry.ellipsoid import min_volume_ellipsoid
-from detaug_gym.geometry.sdf import quat_xyzw_to_matrix
 from detaug_gym.policies.base import make_policy
+from detaug_gym.rotations import quat_xyzw_to_mat, rotvec_to_mat
 
 POSITION_SCALE = 0.05  # m per action unit per step (OSC_POSE output_max)
 ROTATION_SCALE = 0.5  # rad per action unit per step
@@ -85,16 +85,6 @@ class FilterStep:
     h: float
     correction: float
     feasible: bool = True
-
-
-def axis_angle_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """Rotation matrix ``(3, 3)`` of an axis-angle vector ``(3,)`` (Rodrigues)."""
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-12:
-        return np.eye(3)
-    k = np.asarray(rotvec, np.float64) / angle
-    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * cross @ cross
 
 
 @dataclass(frozen=True)
@@ -168,7 +158,7 @@ class CBFFilter:
         if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) < 0.5:
             return None
         pose = np.asarray(obs["obstacle_pose"], np.float64)
-        rotation = quat_xyzw_to_matrix(pose[3:7])
+        rotation = quat_xyzw_to_mat(pose[3:7])
         local = (np.asarray(obs["obstacle_points"], np.float64) - pose[:3]) @ rotation
         match = next((fit for fit in self._fits if fit[0].shape == local.shape
                       and np.abs(fit[0] - local).max() < SHAPE_TOLERANCE), None)  # float32 poses jitter ~1e-6 m
@@ -183,10 +173,10 @@ class CBFFilter:
     def constraint(self, action: np.ndarray, obs: Mapping[str, np.ndarray], obstacle
                    ) -> tuple[float, np.ndarray, float]:
         """``(h, g, b)``: barrier now, and the linear constraint ``g . a[:3] >= b`` on the position part."""
-        rotation = quat_xyzw_to_matrix(obs["eef_quat"])
+        rotation = quat_xyzw_to_mat(obs["eef_quat"])
         eef = np.asarray(obs["eef_pos"], np.float64)
         h, _ = barrier(*self.end_effector.placed(eef, rotation), *obstacle)
-        turned = axis_angle_matrix(self.rotation_scale * np.asarray(action[3:6], np.float64)) @ rotation
+        turned = rotvec_to_mat(self.rotation_scale * np.asarray(action[3:6], np.float64)) @ rotation
         h_turned, grad = barrier(*self.end_effector.placed(eef, turned), *obstacle)
         # h_r + g . (scale a) >= (1 - alpha dt) h   <=>   (scale g) . a >= (1 - alpha dt) h - h_r
         return h, self.position_scale * grad, (1.0 - self.alpha * self.dt) * h - h_turned

@@ -38,9 +38,10 @@ import torch
 
 from detaug_gym.geometry.costs import DEFAULT_MARGIN, sphere_cost
 from detaug_gym.geometry.robot_points import EEF_SPHERE_RADIUS, RobotGeometry, RobotSpheres
-from detaug_gym.geometry.sdf import ObstacleSDF, obstacle_sdf, quat_xyzw_to_matrix
+from detaug_gym.geometry.sdf import ObstacleSDF, obstacle_sdf
 from detaug_gym.models.flow import Guidance
 from detaug_gym.models.policy import FlowPolicy, load_checkpoint, shift_plan, zoo_dir
+from detaug_gym.rotations import quat_xyzw_to_mat
 
 GUIDE_TARGETS = ("both", "states", "actions")
 POSITION_SCALE = 0.05  # m per action unit (OSC_POSE)
@@ -146,7 +147,7 @@ class CapePolicy(FlowPolicy):
         """The shared SDF, re-posed without re-baking while the obstacle keeps its shape (to 1 mm; pushes
         move it, float32 poses jitter its local points by ~1e-6 m, which can change the grid cache key)."""
         pose = np.asarray(obs["obstacle_pose"], np.float64)
-        rotation = quat_xyzw_to_matrix(pose[3:7])
+        rotation = quat_xyzw_to_mat(pose[3:7])
         local = (np.asarray(obs["obstacle_points"], np.float64) - pose[:3]) @ rotation
         if self._shape is not None and self._shape[0].shape == local.shape \
                 and np.abs(self._shape[0] - local).max() < 1e-3:

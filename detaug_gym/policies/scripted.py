@@ -35,15 +35,7 @@ from functools import partial
 
 import numpy as np
 
-from detaug_gym.policies.scripted_math import (
-    bezier,
-    mat_to_rotvec,
-    min_jerk,
-    quat_to_mat,
-    rot_x,
-    rot_z,
-    wrap_yaw,
-)
+from detaug_gym.policies.scripted_math import bezier, min_jerk, rot_x, rot_z, wrap_yaw
 from detaug_gym.policies.scripted_tasks import (
     DRAWER_HANDLE,
     DRAWER_OPEN_DIR,
@@ -56,6 +48,7 @@ from detaug_gym.policies.scripted_tasks import (
     Step,
     identify_task,
 )
+from detaug_gym.rotations import quat_xyzw_to_mat, rotation_error
 
 POS_SCALE = 0.05  # m per unit action (OSC_POSE output_max)
 ROT_SCALE = 0.5  # rad per unit action
@@ -321,7 +314,7 @@ class ScriptedExpert:
         """Grasp the top drawer's handle with the hand pitched towards the cabinet and pull it open."""
         style = self.style
         site = self._pose(site_slot)
-        rot = quat_to_mat(site[3:])
+        rot = quat_xyzw_to_mat(site[3:])
         handle = site[:3] + rot @ DRAWER_HANDLE
         pull = rot @ DRAWER_OPEN_DIR
         yield from self._move(handle + 0.07 * pull + [0, 0, 0.02], 0.0, OPEN, style.speed, tol=0.015,
@@ -341,7 +334,7 @@ class ScriptedExpert:
         """Grip-site position and hand yaw for grasping the object of ``step``."""
         spec = OBJECTS[step.obj]
         pose = self._pose(step.obj_slot)
-        rot = quat_to_mat(pose[3:])
+        rot = quat_xyzw_to_mat(pose[3:])
         dz = self.style.grasp_dz + (0.006 * attempt if attempt else 0.0)
         if spec.style == "rim":
             # Wall points on the rim circle at grasp height, in the cup's own (possibly tilted) frame; take
@@ -397,7 +390,7 @@ class ScriptedExpert:
         """Grip-site position that releases the held object at the place point of ``step``."""
         spec, place = OBJECTS[step.obj], TARGETS[step.target]
         target = self._pose(step.target_slot)
-        rot = quat_to_mat(target[3:])
+        rot = quat_xyzw_to_mat(target[3:])
         point = target[:3] + rot @ np.array([*place.offset, 0.0])
         point[:2] += np.asarray(place.world_offset) + np.asarray(step.place_shift) + self.style.place_jitter
         point[2] = target[2] + place.surface + place.clearance + spec.bottom
@@ -472,16 +465,16 @@ class ScriptedExpert:
         self.trace.append((label, t + 1, True))
 
     def _rotation_error(self) -> float:
-        current = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
-        return float(np.linalg.norm(mat_to_rotvec(self._hand_rotation() @ current.T)))
+        current = quat_xyzw_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
+        return float(np.linalg.norm(rotation_error(self._hand_rotation(), current)))
 
     def _servo(self, target: np.ndarray, grip: float) -> np.ndarray:
         """OSC_POSE delta that sets the controller's goal to ``target`` and the current yaw/pitch."""
         self._grip = grip
         action = np.zeros(7, dtype=np.float32)
         action[:3] = np.clip((target - self._eef()) / POS_SCALE, -1.0, 1.0)
-        current = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
-        rotvec = mat_to_rotvec(self._hand_rotation() @ current.T)
+        current = quat_xyzw_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
+        rotvec = rotation_error(self._hand_rotation(), current)
         action[3:6] = np.clip(rotvec / ROT_SCALE, -1.0, 1.0)
         action[6] = grip
         return action
@@ -503,5 +496,5 @@ class ScriptedExpert:
         return rot_z(self._yaw) @ rot_x(-self._pitch) @ R_DOWN
 
     def _current_yaw(self) -> float:
-        rot = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64)) @ R_DOWN.T
+        rot = quat_xyzw_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64)) @ R_DOWN.T
         return float(np.arctan2(rot[1, 0], rot[0, 0]))

@@ -1,0 +1,96 @@
+"""Shared conventions: rotations against MuJoCo's own conversions."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from detaug_gym.rotations import (
+    mat_to_quat_wxyz,
+    mat_to_quat_xyzw,
+    mat_to_rotvec,
+    quat_wxyz_to_mat,
+    quat_xyzw_to_mat,
+    rotation_error,
+    rotvec_to_mat,
+    skew,
+)
+
+
+def _random_quats_wxyz(n: int, seed: int = 0) -> np.ndarray:
+    q = np.random.default_rng(seed).normal(size=(n, 4))
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _mujoco_mat(quat_wxyz: np.ndarray) -> np.ndarray:
+    out = np.zeros(9)
+    mujoco.mju_quat2Mat(out, quat_wxyz)
+    return out.reshape(3, 3)
+
+
+# ---------------------------------------------------------------------------------------------- rotations
+def test_quaternion_to_matrix_matches_mujoco_single_and_batched():
+    quats = _random_quats_wxyz(500)
+    expected = np.stack([_mujoco_mat(q) for q in quats])
+    batched = quat_xyzw_to_mat(quats[:, [1, 2, 3, 0]])
+    assert batched.shape == (500, 3, 3)
+    np.testing.assert_allclose(batched, expected, rtol=0, atol=2e-15)
+    np.testing.assert_allclose(quat_wxyz_to_mat(quats), expected, rtol=0, atol=2e-15)
+    for q, m in zip(quats[:20], expected):
+        np.testing.assert_allclose(quat_xyzw_to_mat(q[[1, 2, 3, 0]]), m, rtol=0, atol=2e-15)
+    grid = quat_xyzw_to_mat(quats[:12, [1, 2, 3, 0]].reshape(3, 4, 4))  # any leading shape
+    np.testing.assert_array_equal(grid.reshape(12, 3, 3), batched[:12])
+
+
+def test_quaternions_are_normalised_and_zero_gives_identity():
+    q = np.array([0.3, -0.2, 0.5, 0.7])
+    np.testing.assert_allclose(quat_xyzw_to_mat(7.5 * q), quat_xyzw_to_mat(q), atol=1e-15)
+    np.testing.assert_array_equal(quat_xyzw_to_mat(np.zeros(4)), np.eye(3))  # an empty observation slot
+    np.testing.assert_array_equal(quat_xyzw_to_mat(np.zeros((2, 4))), np.stack([np.eye(3)] * 2))
+    rot = quat_xyzw_to_mat(np.float32(q))  # float32 observations are converted in float64
+    assert rot.dtype == np.float64
+    np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-12)
+
+
+def test_matrix_to_quaternion_is_mujocos_and_round_trips():
+    quats = _random_quats_wxyz(200, seed=1)
+    mats = np.stack([_mujoco_mat(q) for q in quats])
+    expected = np.zeros((200, 4))
+    for row, m in zip(expected, mats):
+        mujoco.mju_mat2Quat(row, m.reshape(9))
+    np.testing.assert_array_equal(mat_to_quat_wxyz(mats), expected)
+    np.testing.assert_array_equal(mat_to_quat_xyzw(mats), expected[:, [1, 2, 3, 0]])
+    assert mat_to_quat_xyzw(mats[0]).shape == (4,)
+    same_sign = np.sign(np.sum(mat_to_quat_wxyz(mats) * quats, axis=1))[:, None]  # q and -q: one rotation
+    np.testing.assert_allclose(same_sign * mat_to_quat_wxyz(mats), quats, atol=1e-12)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-4, 0.3, 2.0, np.pi - 1e-3, np.pi - 1e-7])
+def test_rotation_vectors_round_trip_at_every_angle(angle):
+    rng = np.random.default_rng(2)
+    for _ in range(10):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        rotvec = angle * axis
+        quat = np.zeros(4)
+        mujoco.mju_axisAngle2Quat(quat, axis, angle)
+        rot = rotvec_to_mat(rotvec)
+        np.testing.assert_allclose(rot, _mujoco_mat(quat), atol=1e-15)
+        np.testing.assert_allclose(mat_to_rotvec(rot), rotvec, atol=1e-7 if angle > 3 else 1e-12)
+
+
+def test_rotation_error_takes_the_current_rotation_onto_the_target():
+    quats = _random_quats_wxyz(40, seed=3)
+    for a, b in zip(quats[::2], quats[1::2]):
+        current, target = quat_wxyz_to_mat(a), quat_wxyz_to_mat(b)
+        err = rotation_error(target, current)
+        assert np.linalg.norm(err) <= np.pi + 1e-12
+        np.testing.assert_allclose(rotvec_to_mat(err) @ current, target, atol=1e-9)
+        angle = 2 * np.arccos(min(abs(float(a @ b)), 1.0))  # angle between the two quaternions
+        assert np.linalg.norm(err) == pytest.approx(angle, abs=1e-6)
+
+
+def test_skew_is_the_cross_product():
+    u, v = np.random.default_rng(4).normal(size=(2, 3))
+    np.testing.assert_allclose(skew(u) @ v, np.cross(u, v), atol=1e-15)
