@@ -9,10 +9,11 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from detaug_gym.actions import action_to_goal
 from detaug_gym.models.checkpoint import CheckpointError
 from detaug_gym.policies import available_policies, make_policy
 from detaug_gym.policies.aegis import AegisPolicy, CBFFilter, EndEffectorEllipsoid, barrier
-from detaug_gym.rotations import quat_xyzw_to_mat, rotvec_to_mat
+from detaug_gym.rotations import quat_xyzw_to_mat
 
 OBSTACLE_POS = np.array([0.0, 0.0, 1.0])
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # xyzw: tool axis pointing down, like the env's default hand
@@ -33,8 +34,7 @@ def box_observation(centre=OBSTACLE_POS, half=(0.04, 0.05, 0.10), quat=(0.0, 0.0
 
 def commanded_barrier(action: np.ndarray, obs: dict, flt: CBFFilter = FILTER) -> float:
     """Exact barrier at the pose the action commands (OSC_POSE goal), not its linearisation."""
-    rotation = rotvec_to_mat(0.5 * np.asarray(action[3:6], np.float64)) @ quat_xyzw_to_mat(obs["eef_quat"])
-    goal = obs["eef_pos"] + 0.05 * np.asarray(action[:3], np.float64)
+    goal, rotation = action_to_goal(obs["eef_pos"], quat_xyzw_to_mat(obs["eef_quat"]), action)
     return barrier(*flt.end_effector.placed(goal, rotation), *flt.obstacle_ellipsoid(obs))[0]
 
 

@@ -1,4 +1,4 @@
-"""Shared conventions: rotations against MuJoCo's own conversions."""
+"""Shared conventions: the OSC_POSE action codec and rotations against MuJoCo's own conversions."""
 
 from __future__ import annotations
 
@@ -6,6 +6,18 @@ import mujoco
 import numpy as np
 import pytest
 
+from detaug_gym.actions import (
+    ACTION_DIM,
+    CONTROL_DT,
+    CONTROL_HZ,
+    GRIPPER_CLOSE,
+    GRIPPER_OPEN,
+    POS_SCALE,
+    ROT_SCALE,
+    action_to_goal,
+    controller_settings,
+    goal_to_action,
+)
 from detaug_gym.rotations import (
     mat_to_quat_wxyz,
     mat_to_quat_xyzw,
@@ -94,3 +106,42 @@ def test_rotation_error_takes_the_current_rotation_onto_the_target():
 def test_skew_is_the_cross_product():
     u, v = np.random.default_rng(4).normal(size=(2, 3))
     np.testing.assert_allclose(skew(u) @ v, np.cross(u, v), atol=1e-15)
+
+
+# ---------------------------------------------------------------------------------------------- actions
+def test_constants_are_the_robosuite_osc_pose_convention():
+    assert (POS_SCALE, ROT_SCALE, ACTION_DIM) == (0.05, 0.5, 7)
+    assert CONTROL_HZ * CONTROL_DT == pytest.approx(1.0)
+    assert (GRIPPER_OPEN, GRIPPER_CLOSE) == (-1.0, 1.0)
+
+
+@pytest.mark.parametrize("stepper", ["fast", "stock"])
+def test_controller_settings_are_what_collection_stores(stepper):
+    # the keys and values detaug_gym.collect has written into every demo's "controller" attribute
+    assert controller_settings(stepper) == {"type": "OSC_POSE", "stepper": stepper, "control_freq": 20,
+                                            "pos_scale": 0.05, "rot_scale": 0.5, "gripper": "-1 open, +1 close"}
+
+
+def test_goal_to_action_to_goal_round_trip():
+    rng = np.random.default_rng(5)
+    for quat in _random_quats_wxyz(50, seed=6):
+        pos, rot = rng.normal(size=3), quat_wxyz_to_mat(quat)
+        action = np.r_[rng.uniform(-1, 1, 6), rng.choice([GRIPPER_OPEN, GRIPPER_CLOSE])]
+        goal_pos, goal_rot = action_to_goal(pos, rot, action)
+        np.testing.assert_allclose(goal_pos, pos + POS_SCALE * action[:3], atol=1e-15)
+        np.testing.assert_allclose(goal_rot @ rot.T, rotvec_to_mat(ROT_SCALE * action[3:6]), atol=1e-14)
+        back = goal_to_action(pos, rot, goal_pos, goal_rot, action[6])
+        assert back.shape == (ACTION_DIM,) and back.dtype == np.float64
+        np.testing.assert_allclose(back, action, atol=1e-12)
+        again = action_to_goal(pos, rot, back)
+        np.testing.assert_allclose(again[0], goal_pos, atol=1e-12)
+        np.testing.assert_allclose(again[1], goal_rot, atol=1e-12)
+
+
+def test_goals_out_of_reach_clip_and_actions_out_of_the_box_are_clipped():
+    rot = np.eye(3)
+    far = goal_to_action(np.zeros(3), rot, np.array([1.0, -0.01, 0.0]), rotvec_to_mat([0.0, 0.0, 2.0]), 0.3)
+    np.testing.assert_allclose(far, [1.0, -0.2, 0.0, 0.0, 0.0, 1.0, 0.3])
+    goal_pos, goal_rot = action_to_goal(np.zeros(3), rot, np.array([3.0, 0.0, 0.0, 0.0, 0.0, -2.0, 1.0]))
+    np.testing.assert_allclose(goal_pos, [POS_SCALE, 0.0, 0.0])
+    np.testing.assert_allclose(goal_rot, rotvec_to_mat([0.0, 0.0, -ROT_SCALE]), atol=1e-15)

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from detaug_gym.actions import CONTROL_DT
 from detaug_gym.rotations import mat_to_quat_wxyz
 
 GRIPPER_PREFIXES = ("gripper0_", "robot0_right_hand")
@@ -46,7 +47,7 @@ class FeasibilityConfig:
     max_joint_speed: float = 1.5
     max_joint_accel: float = 12.0
     penetration: float = 0.002
-    dt: float = 0.05
+    dt: float = CONTROL_DT
 
 
 @dataclass(frozen=True)

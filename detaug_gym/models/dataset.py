@@ -37,6 +37,7 @@ import h5py
 import numpy as np
 import torch
 
+from detaug_gym.actions import ACTION_DIM
 from detaug_gym.models.normalize import Normalizer
 from detaug_gym.rotations import quat_xyzw_to_mat
 
@@ -44,7 +45,6 @@ PLAN_STATE_KEYS = ("robot_joint_pos", "gripper_qpos", "eef_pos")
 OBS_KEYS = ("robot_joint_pos", "robot_joint_vel", "gripper_qpos", "eef_pos", "eef_quat",
             "object_poses", "object_mask", "task_id", "object_rel_pos")
 DERIVED_KEYS = {"object_rel_pos": ("object_poses", "eef_pos", "object_mask")}  # computed, not stored
-ACTION_DIM = 7
 QUAT_KEYS = {"eef_quat": None, "object_poses": slice(3, 7)}  # where a key holds xyzw quaternions
 
 

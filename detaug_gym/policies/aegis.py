@@ -28,10 +28,11 @@ centre, and its linearisation is a lower bound (see below). Over a dense grid ``
 exactly "the ellipsoids do not overlap" (exact for two spheres of equal radius: ``h = D / (r1 + r2) - 1``);
 a single fixed member (e.g. the smallest-trace one) would be a much more conservative test.
 
-Constraint: ``dh/dt >= -alpha h`` in discrete time with ``dt = 0.05 s`` (20 Hz). The commanded
-end-effector velocity is ``v = 0.05 a[:3] / dt`` (OSC_POSE: ``goal = eef_pos + 0.05 a[:3]``); the commanded
-rotation ``R' = exp(0.5 a[3:6]) R`` is kept as proposed and enters exactly (``h_r``, ``g`` = value and
-gradient of ``h`` at the rotated pose), the translation linearly::
+Constraint: ``dh/dt >= -alpha h`` in discrete time with ``dt = CONTROL_DT`` (20 Hz). The commanded
+end-effector velocity is ``v = POS_SCALE a[:3] / dt`` (OSC_POSE, :func:`~detaug_gym.actions.action_to_goal`:
+``goal = eef_pos + POS_SCALE a[:3]``); the commanded rotation ``R' = exp(ROT_SCALE a[3:6]) R`` is kept as
+proposed and enters exactly (``h_r``, ``g`` = value and gradient of ``h`` at the rotated pose), the
+translation linearly::
 
     h_r + g . (v dt)  >=  (1 - alpha dt) h
 
@@ -58,13 +59,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from detaug_gym.actions import CONTROL_DT, POS_SCALE, action_to_goal
 from detaug_gym.geometry.ellipsoid import min_volume_ellipsoid
 from detaug_gym.policies.base import make_policy
-from detaug_gym.rotations import quat_xyzw_to_mat, rotvec_to_mat
+from detaug_gym.rotations import quat_xyzw_to_mat
 
-POSITION_SCALE = 0.05  # m per action unit per step (OSC_POSE output_max)
-ROTATION_SCALE = 0.5  # rad per action unit per step
-CONTROL_DT = 0.05  # s (20 Hz)
 EE_SEMI_AXES = (0.12, 0.06, 0.11)  # m, grip-site frame: finger travel x, palm normal y, tool axis z
 EE_OFFSET = 0.056  # m from the grip site towards the wrist (along -z of the grip site)
 SHAPE_TOLERANCE = 1e-3  # m: obstacle points this close in the obstacle frame reuse the cached ellipsoid fit
@@ -134,21 +133,18 @@ class CBFFilter:
         alpha: class-K gain of ``dh/dt >= -alpha h`` (1/s).
         dt: control period (s); ``alpha * dt`` must lie in (0, 1].
         end_effector: the end-effector ellipsoid.
-        position_scale, rotation_scale: OSC_POSE scaling of the action (m, rad per unit).
+
+    Actions are read with the package's OSC_POSE convention (:mod:`detaug_gym.actions`).
     """
 
     def __init__(self, alpha: float = 10.0, dt: float = CONTROL_DT,
-                 end_effector: EndEffectorEllipsoid | None = None,
-                 position_scale: float = POSITION_SCALE, rotation_scale: float = ROTATION_SCALE) -> None:
+                 end_effector: EndEffectorEllipsoid | None = None) -> None:
         if not (alpha > 0 and dt > 0 and alpha * dt <= 1.0):
             raise ValueError(f"need alpha > 0, dt > 0 and alpha * dt <= 1, got alpha={alpha}, dt={dt}")
         self.end_effector = end_effector or EndEffectorEllipsoid()
         if len(self.end_effector.semi_axes) != 3 or min(self.end_effector.semi_axes) <= 0:
             raise ValueError(f"end-effector semi-axes must be 3 positive lengths, got {self.end_effector.semi_axes}")
-        if position_scale <= 0:
-            raise ValueError(f"position_scale must be > 0, got {position_scale}")
         self.alpha, self.dt = float(alpha), float(dt)
-        self.position_scale, self.rotation_scale = float(position_scale), float(rotation_scale)
         self._fits: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (local points, centre, Q), newest first
         self._qp = BarrierQP()
 
@@ -176,10 +172,10 @@ class CBFFilter:
         rotation = quat_xyzw_to_mat(obs["eef_quat"])
         eef = np.asarray(obs["eef_pos"], np.float64)
         h, _ = barrier(*self.end_effector.placed(eef, rotation), *obstacle)
-        turned = rotvec_to_mat(self.rotation_scale * np.asarray(action[3:6], np.float64)) @ rotation
+        _, turned = action_to_goal(eef, rotation, action)
         h_turned, grad = barrier(*self.end_effector.placed(eef, turned), *obstacle)
-        # h_r + g . (scale a) >= (1 - alpha dt) h   <=>   (scale g) . a >= (1 - alpha dt) h - h_r
-        return h, self.position_scale * grad, (1.0 - self.alpha * self.dt) * h - h_turned
+        # h_r + g . (POS_SCALE a) >= (1 - alpha dt) h   <=>   (POS_SCALE g) . a >= (1 - alpha dt) h - h_r
+        return h, POS_SCALE * grad, (1.0 - self.alpha * self.dt) * h - h_turned
 
     def __call__(self, action: np.ndarray, obs: Mapping[str, np.ndarray]) -> tuple[np.ndarray, FilterStep]:
         """The filtered action (the same object when it is already safe) and what was done."""

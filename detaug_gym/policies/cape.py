@@ -21,7 +21,7 @@ and only the actions are executed, so the cost is evaluated twice (``guide="both
 - ``states``: spheres placed by FK of the plan's joint states; its gradient moves the states, which
   reaches the actions only through later network evaluations (none after the last Euler step);
 - ``actions``: the same spheres carried along the end-effector path the plan's actions command,
-  ``p_{t+1} = p_t + gain * 0.05 * a_t[:3]`` (``action_gain`` 0.25: the fraction of the commanded 5 cm a
+  ``p_{t+1} = p_t + gain * POS_SCALE * a_t[:3]`` (``action_gain`` 0.25: the fraction of the commanded 5 cm a
   step that the OSC controller achieves at steady state, measured on the Spatial env), with the hand's
   orientation from FK; its gradient moves the executed actions away from the obstacle.
 
@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from detaug_gym.actions import POS_SCALE
 from detaug_gym.geometry.costs import DEFAULT_MARGIN, sphere_cost
 from detaug_gym.geometry.robot_points import EEF_SPHERE_RADIUS, RobotGeometry, RobotSpheres
 from detaug_gym.geometry.sdf import ObstacleSDF, obstacle_sdf
@@ -44,7 +45,6 @@ from detaug_gym.models.policy import FlowPolicy, load_checkpoint, shift_plan, zo
 from detaug_gym.rotations import quat_xyzw_to_mat
 
 GUIDE_TARGETS = ("both", "states", "actions")
-POSITION_SCALE = 0.05  # m per action unit (OSC_POSE)
 
 
 @dataclass(frozen=True)
@@ -168,7 +168,7 @@ class CapePolicy(FlowPolicy):
         if self.guide in ("both", "states"):
             total = total + sphere_cost(centres, radii, sdf, self.margin)
         if self.guide in ("both", "actions"):
-            moves = self.action_gain * POSITION_SCALE * plans[..., self.layout.action_slice][..., :-1, :3]
+            moves = self.action_gain * POS_SCALE * plans[..., self.layout.action_slice][..., :-1, :3]
             start = fk.eef_position[..., :1, :].detach()  # the current grip site (inpainted state)
             path = torch.cat([start, start + torch.cumsum(moves, dim=-2)], dim=-2)  # (K, H, 3)
             hand = (centres - fk.eef_position[..., None, :]).detach()  # sphere layout from the FK orientation
