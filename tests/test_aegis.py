@@ -10,6 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from detaug_gym.actions import action_to_goal
+from detaug_gym.geometry import obstacle_view
+from detaug_gym.geometry.obstacle_view import ShapeCache, obstacle_local_points
 from detaug_gym.models.checkpoint import CheckpointError
 from detaug_gym.policies import available_policies, make_policy
 from detaug_gym.policies.aegis import AegisPolicy, CBFFilter, EndEffectorEllipsoid, barrier
@@ -120,7 +122,9 @@ def test_barrier_is_exact_for_equal_spheres(distance):
     np.testing.assert_allclose(grad, [1.0 / 0.1, 0.0, 0.0])
 
 
-def test_obstacle_ellipsoid_encloses_the_points_when_posed_and_moved():
+def test_obstacle_ellipsoid_encloses_the_points_when_posed_and_moved(monkeypatch):
+    shapes = ShapeCache()
+    monkeypatch.setattr(obstacle_view, "SHAPES", shapes)
     flt = CBFFilter()
     yaw = np.array([0.0, 0.0, np.sin(0.4), np.cos(0.4)])
     for centre, quat in ((OBSTACLE_POS, (0, 0, 0, 1)), (OBSTACLE_POS + [0.1, -0.05, 0.0], yaw)):
@@ -128,7 +132,7 @@ def test_obstacle_ellipsoid_encloses_the_points_when_posed_and_moved():
         c, q = flt.obstacle_ellipsoid(obs)
         diff = obs["obstacle_points"].astype(np.float64) - c
         assert np.all(np.einsum("ni,ij,nj->n", diff, np.linalg.inv(q), diff) <= 1.0 + 1e-6)
-    assert len(flt._fits) == 1  # one shape, fitted once in its own frame
+    assert len(shapes) == 1 and "mvee" in shapes.lookup(obstacle_local_points(obs)).products  # fitted once
 
 
 def test_end_effector_ellipsoid_sits_above_the_grip_site():

@@ -1,4 +1,4 @@
-"""Shared conventions: the OSC_POSE action codec and rotations against MuJoCo's own conversions."""
+"""Shared conventions: the OSC_POSE action codec, rotations against MuJoCo's own conversions, the obstacle view."""
 
 from __future__ import annotations
 
@@ -17,6 +17,15 @@ from detaug_gym.actions import (
     action_to_goal,
     controller_settings,
     goal_to_action,
+)
+from detaug_gym.geometry import obstacle_view
+from detaug_gym.geometry.obstacle_view import (
+    SHAPE_TOLERANCE,
+    ShapeCache,
+    has_obstacle,
+    obstacle_frame,
+    obstacle_local_points,
+    obstacle_shape,
 )
 from detaug_gym.rotations import (
     mat_to_quat_wxyz,
@@ -145,3 +154,65 @@ def test_goals_out_of_reach_clip_and_actions_out_of_the_box_are_clipped():
     goal_pos, goal_rot = action_to_goal(np.zeros(3), rot, np.array([3.0, 0.0, 0.0, 0.0, 0.0, -2.0, 1.0]))
     np.testing.assert_allclose(goal_pos, [POS_SCALE, 0.0, 0.0])
     np.testing.assert_allclose(goal_rot, rotvec_to_mat([0.0, 0.0, -ROT_SCALE]), atol=1e-15)
+
+
+# ---------------------------------------------------------------------------------------------- obstacle view
+def _obstacle_obs(local: np.ndarray, position, quat_xyzw, mask: float = 1.0) -> dict[str, np.ndarray]:
+    world = local @ quat_xyzw_to_mat(np.asarray(quat_xyzw)).T + position
+    return {"obstacle_points": world.astype(np.float32), "obstacle_pose": np.r_[position, quat_xyzw].astype(np.float32),
+            "obstacle_mask": np.full(1, mask, np.float32)}
+
+
+LOCAL = np.random.default_rng(7).uniform(-0.05, 0.05, (256, 3))
+YAWED = (0.0, 0.0, np.sin(0.6), np.cos(0.6))
+
+
+def test_has_obstacle_reads_the_mask_with_one_rule():
+    assert has_obstacle(_obstacle_obs(LOCAL, [0.1, 0.0, 0.9], YAWED))
+    assert not has_obstacle(_obstacle_obs(LOCAL, [0.1, 0.0, 0.9], YAWED, mask=0.0))
+    assert not has_obstacle({"eef_pos": np.zeros(3)})  # no obstacle keys at all
+    assert has_obstacle({"obstacle_mask": np.array([[1.0]])}) and not has_obstacle({"obstacle_mask": [0.0]})
+    assert has_obstacle({"obstacle_mask": np.array([0.5])}) and not has_obstacle({"obstacle_mask": np.array([0.49])})
+
+
+def test_obstacle_frame_and_local_points_undo_the_pose():
+    obs = _obstacle_obs(LOCAL, [0.1, -0.2, 0.9], YAWED)
+    position, rotation = obstacle_frame(obs)
+    np.testing.assert_allclose(position, [0.1, -0.2, 0.9], atol=1e-6)
+    np.testing.assert_allclose(rotation, quat_xyzw_to_mat(np.float32(YAWED)), atol=1e-15)
+    local = obstacle_local_points(obs)
+    assert local.shape == (256, 3) and local.dtype == np.float64
+    np.testing.assert_allclose(local, LOCAL, atol=1e-6)  # float32 observations: ~1e-7 m jitter
+
+
+def test_shape_cache_matches_a_posed_shape_and_keeps_the_newest(monkeypatch):
+    shapes = ShapeCache(capacity=2)
+    monkeypatch.setattr(obstacle_view, "SHAPES", shapes)
+    here = obstacle_shape(_obstacle_obs(LOCAL, [0.1, -0.2, 0.9], YAWED))
+    moved = obstacle_shape(_obstacle_obs(LOCAL, [-0.3, 0.2, 1.0], (0.0, 0.0, 0.0, 1.0)))
+    assert moved is here and len(shapes) == 1
+    built = []
+    assert here.product("fit", lambda p: built.append(p) or "fit") == "fit"
+    assert moved.product("fit", lambda p: built.append(p) or "again") == "fit" and len(built) == 1
+    other = obstacle_shape(_obstacle_obs(LOCAL + [2 * SHAPE_TOLERANCE, 0.0, 0.0], [0.1, -0.2, 0.9], YAWED))
+    assert other is not here and len(shapes) == 2
+    third = shapes.lookup(0.5 * LOCAL)
+    assert len(shapes) == 2 and shapes.lookup(0.5 * LOCAL) is third and shapes.lookup(LOCAL + [0.002, 0, 0]) is other
+    assert shapes.lookup(LOCAL) is not here  # the least recently used shape was dropped
+
+
+def test_sdf_and_ellipsoid_share_the_shape_entry(monkeypatch):
+    from detaug_gym.geometry import obstacle_sdf
+    from detaug_gym.policies.aegis import CBFFilter
+
+    shapes = ShapeCache()
+    monkeypatch.setattr(obstacle_view, "SHAPES", shapes)
+    box = np.array(np.meshgrid(*[[-0.03, 0.03]] * 3)).reshape(3, -1).T
+    local = np.concatenate([box, np.random.default_rng(8).uniform(-0.03, 0.03, (20, 3))])
+    obs = _obstacle_obs(local, [0.1, -0.2, 0.9], YAWED)
+    sdf = obstacle_sdf(obs, spacing=0.02)
+    assert CBFFilter().obstacle_ellipsoid(obs) is not None
+    entry = shapes.lookup(obstacle_local_points(obs))
+    assert len(shapes) == 1 and {"hull", ("sdf", 0.02, 0.1), "mvee"} <= set(entry.products)
+    assert sdf.grid is entry.products[("sdf", 0.02, 0.1)] and sdf.mesh is entry.products["hull"]
+    assert obstacle_sdf({**obs, "obstacle_mask": np.zeros(1)}).empty

@@ -8,8 +8,8 @@ Geometry (all in the world frame, from the observation only):
 
 - **Obstacle**: the minimum-volume enclosing ellipsoid (Khachiyan, :func:`~detaug_gym.geometry.min_volume_ellipsoid`)
   of ``obstacle_points``. It is fitted once per obstacle shape in the obstacle's own frame (from
-  ``obstacle_pose``) and moved with the pose, so a pushed obstacle costs no new fit (points that match a
-  cached shape to within 1 mm reuse its fit: float32 poses jitter the local points by ~1e-6 m).
+  ``obstacle_pose``) and moved with the pose, so a pushed obstacle costs no new fit (the fit lives in the shared
+  shape cache of :mod:`~detaug_gym.geometry.obstacle_view`, next to the SDF grids of the same shape).
 - **End effector**: an ellipsoid fixed to the grip site (``eef_pos`` / ``eef_quat``): semi-axes 0.12 m along
   the finger travel (grip-site x: the palm is ~0.2 m wide), 0.06 m along the palm normal (y) and 0.11 m
   along the tool axis (z), centred 0.056 m from the grip site towards the wrist, so it covers the hand
@@ -61,12 +61,12 @@ import numpy as np
 
 from detaug_gym.actions import CONTROL_DT, POS_SCALE, action_to_goal
 from detaug_gym.geometry.ellipsoid import min_volume_ellipsoid
+from detaug_gym.geometry.obstacle_view import has_obstacle, obstacle_frame, obstacle_shape
 from detaug_gym.policies.base import make_policy
 from detaug_gym.rotations import quat_xyzw_to_mat
 
 EE_SEMI_AXES = (0.12, 0.06, 0.11)  # m, grip-site frame: finger travel x, palm normal y, tool axis z
 EE_OFFSET = 0.056  # m from the grip site towards the wrist (along -z of the grip site)
-SHAPE_TOLERANCE = 1e-3  # m: obstacle points this close in the obstacle frame reuse the cached ellipsoid fit
 
 
 @dataclass(frozen=True)
@@ -103,6 +103,12 @@ class EndEffectorEllipsoid:
         centre = np.asarray(eef_pos, np.float64) - self.offset * rotation[:, 2]
         scaled = rotation * np.asarray(self.semi_axes, np.float64)  # columns: axis * semi-axis
         return centre, scaled @ scaled.T
+
+
+def _local_ellipsoid(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centre ``(3,)`` and covariance form ``Q`` ``(3, 3)`` of the MVEE of ``(N, 3)`` points."""
+    fit = min_volume_ellipsoid(points)
+    return fit.centre, np.linalg.inv(fit.shape)
 
 
 MINKOWSKI_P = np.logspace(-2.0, 2.0, 97)  # members of the enclosing family; p = 1 (equal sizes) included
@@ -145,25 +151,17 @@ class CBFFilter:
         if len(self.end_effector.semi_axes) != 3 or min(self.end_effector.semi_axes) <= 0:
             raise ValueError(f"end-effector semi-axes must be 3 positive lengths, got {self.end_effector.semi_axes}")
         self.alpha, self.dt = float(alpha), float(dt)
-        self._fits: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (local points, centre, Q), newest first
         self._qp = BarrierQP()
 
     # ------------------------------------------------------------------ obstacle
     def obstacle_ellipsoid(self, obs: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
-        """World centre and covariance form of the obstacle's MVEE, or ``None`` without an obstacle."""
-        if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) < 0.5:
+        """World centre ``(3,)`` and covariance form ``(3, 3)`` of the obstacle's MVEE, or ``None`` without an
+        obstacle. Fitted once per shape in the obstacle frame (the shared shape cache), then posed."""
+        if not has_obstacle(obs):
             return None
-        pose = np.asarray(obs["obstacle_pose"], np.float64)
-        rotation = quat_xyzw_to_mat(pose[3:7])
-        local = (np.asarray(obs["obstacle_points"], np.float64) - pose[:3]) @ rotation
-        match = next((fit for fit in self._fits if fit[0].shape == local.shape
-                      and np.abs(fit[0] - local).max() < SHAPE_TOLERANCE), None)  # float32 poses jitter ~1e-6 m
-        if match is None:
-            fit = min_volume_ellipsoid(local)
-            match = (local, fit.centre, np.linalg.inv(fit.shape))
-            self._fits = [match, *self._fits[:7]]
-        _, centre, q_local = match
-        return rotation @ centre + pose[:3], rotation @ q_local @ rotation.T
+        position, rotation = obstacle_frame(obs)
+        centre, q_local = obstacle_shape(obs).product("mvee", _local_ellipsoid)
+        return rotation @ centre + position, rotation @ q_local @ rotation.T
 
     # ------------------------------------------------------------------ filtering
     def constraint(self, action: np.ndarray, obs: Mapping[str, np.ndarray], obstacle

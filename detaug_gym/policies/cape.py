@@ -38,11 +38,11 @@ import torch
 
 from detaug_gym.actions import POS_SCALE
 from detaug_gym.geometry.costs import DEFAULT_MARGIN, sphere_cost
+from detaug_gym.geometry.obstacle_view import has_obstacle
 from detaug_gym.geometry.robot_points import EEF_SPHERE_RADIUS, RobotGeometry, RobotSpheres
 from detaug_gym.geometry.sdf import ObstacleSDF, obstacle_sdf
 from detaug_gym.models.flow import Guidance
 from detaug_gym.models.policy import FlowPolicy, load_checkpoint, shift_plan, zoo_dir
-from detaug_gym.rotations import quat_xyzw_to_mat
 
 GUIDE_TARGETS = ("both", "states", "actions")
 
@@ -100,7 +100,6 @@ class CapePolicy(FlowPolicy):
         self.track_cost = track_cost
         self.diagnostics: list[CapeStep] = []
         self._previous: torch.Tensor | None = None
-        self._shape: tuple[np.ndarray, ObstacleSDF] | None = None  # last obstacle (local points, SDF)
 
     @property
     def prefix_steps(self) -> int:
@@ -132,30 +131,16 @@ class CapePolicy(FlowPolicy):
     # ------------------------------------------------------------------ cost
     def cost_function(self, obs: Mapping[str, np.ndarray]):
         """``cost(plans (K, H, D) physical, t) -> (K,)`` for this observation, or ``None`` without an obstacle."""
-        if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) < 0.5:
+        if not has_obstacle(obs):
             return None
         observation = dict(obs)
-        sdf, robot = self._obstacle_sdf(observation), self.robot.aligned_to(observation)
+        sdf, robot = obstacle_sdf(observation), self.robot.aligned_to(observation)
         fingers = torch.as_tensor(np.asarray(obs["gripper_qpos"], np.float64))
 
         def cost(plans: torch.Tensor, t: float) -> torch.Tensor:
             return self.collision_cost(plans, robot, sdf, fingers)
 
         return cost
-
-    def _obstacle_sdf(self, obs: dict[str, np.ndarray]) -> ObstacleSDF:
-        """The shared SDF, re-posed without re-baking while the obstacle keeps its shape (to 1 mm; pushes
-        move it, float32 poses jitter its local points by ~1e-6 m, which can change the grid cache key)."""
-        pose = np.asarray(obs["obstacle_pose"], np.float64)
-        rotation = quat_xyzw_to_mat(pose[3:7])
-        local = (np.asarray(obs["obstacle_points"], np.float64) - pose[:3]) @ rotation
-        if self._shape is not None and self._shape[0].shape == local.shape \
-                and np.abs(self._shape[0] - local).max() < 1e-3:
-            sdf = self._shape[1]
-            return ObstacleSDF(sdf.grid, rotation, pose[:3], sdf.mesh)
-        sdf = obstacle_sdf(obs)
-        self._shape = (local, sdf)
-        return sdf
 
     def collision_cost(self, plans: torch.Tensor, robot: RobotGeometry, sdf: ObstacleSDF,
                        fingers: torch.Tensor | None = None) -> torch.Tensor:
