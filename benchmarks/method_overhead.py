@@ -119,9 +119,9 @@ def main() -> None:
             methods["detaug"] = make_policy("detaug", suite="spatial")
         first = {}
         for name in ("aegis", "cape"):  # cold caches: a fresh process would pay this once per obstacle shape
-            from detaug_gym.geometry import sdf
+            from detaug_gym.geometry import SHAPES
 
-            sdf._grid_cache.clear()
+            SHAPES.clear()  # hulls, SDF grids and ellipsoid fits of every shape
             fresh = make_policy(name, checkpoint=checkpoint)
             fresh.reset(seed=0)
             start = CLOCK()

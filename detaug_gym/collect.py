@@ -33,6 +33,7 @@ import gymnasium as gym
 import numpy as np
 
 import detaug_gym  # noqa: F401  (registers the env ids)
+from detaug_gym.actions import controller_settings
 from detaug_gym.config import build_parser, config_from_namespace
 from detaug_gym.data.dataset import OBSTACLE_PREFIX, DatasetWriter, Demo
 from detaug_gym.policies import make_policy
@@ -227,11 +228,6 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
                                             "burst": noise.burst, "dims": "xyz"})
     solved = any(s.terminated for s in recorder.steps)
     return recorder.demo(attrs), solved and bool(result.info.get("is_success", False))
-
-
-def controller_settings(stepper: str) -> dict:
-    return {"type": "OSC_POSE", "stepper": stepper, "control_freq": 20,
-            "pos_scale": 0.05, "rot_scale": 0.5, "gripper": "-1 open, +1 close"}
 
 
 def parse_tasks(spec: str, num_tasks: int) -> list[int]:

@@ -9,10 +9,13 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from detaug_gym.geometry.sdf import quat_xyzw_to_matrix
+from detaug_gym.actions import action_to_goal
+from detaug_gym.geometry import obstacle_view
+from detaug_gym.geometry.obstacle_view import ShapeCache, obstacle_local_points
 from detaug_gym.models.checkpoint import CheckpointError
 from detaug_gym.policies import available_policies, make_policy
-from detaug_gym.policies.aegis import AegisPolicy, CBFFilter, EndEffectorEllipsoid, axis_angle_matrix, barrier
+from detaug_gym.policies.aegis import AegisPolicy, CBFFilter, EndEffectorEllipsoid, barrier
+from detaug_gym.rotations import quat_xyzw_to_mat
 
 OBSTACLE_POS = np.array([0.0, 0.0, 1.0])
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # xyzw: tool axis pointing down, like the env's default hand
@@ -25,7 +28,7 @@ def box_observation(centre=OBSTACLE_POS, half=(0.04, 0.05, 0.10), quat=(0.0, 0.0
     points, _ = trimesh.sample.sample_surface(trimesh.creation.box(extents=2 * np.asarray(half)), 248, seed=0)
     corners = np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T * half
     local = np.concatenate([corners, points])
-    world = local @ quat_xyzw_to_matrix(np.asarray(quat)).T + centre
+    world = local @ quat_xyzw_to_mat(np.asarray(quat)).T + centre
     return {"obstacle_points": world.astype(np.float32), "obstacle_pose": np.r_[centre, quat].astype(np.float32),
             "obstacle_size": np.asarray(half, np.float32), "obstacle_mask": np.ones(1, np.float32),
             "eef_pos": np.asarray(eef, np.float64), "eef_quat": np.asarray(eef_quat, np.float64)}
@@ -33,8 +36,7 @@ def box_observation(centre=OBSTACLE_POS, half=(0.04, 0.05, 0.10), quat=(0.0, 0.0
 
 def commanded_barrier(action: np.ndarray, obs: dict, flt: CBFFilter = FILTER) -> float:
     """Exact barrier at the pose the action commands (OSC_POSE goal), not its linearisation."""
-    rotation = axis_angle_matrix(0.5 * np.asarray(action[3:6], np.float64)) @ quat_xyzw_to_matrix(obs["eef_quat"])
-    goal = obs["eef_pos"] + 0.05 * np.asarray(action[:3], np.float64)
+    goal, rotation = action_to_goal(obs["eef_pos"], quat_xyzw_to_mat(obs["eef_quat"]), action)
     return barrier(*flt.end_effector.placed(goal, rotation), *flt.obstacle_ellipsoid(obs))[0]
 
 
@@ -99,7 +101,7 @@ def test_infeasible_step_takes_the_fastest_way_out_and_says_so():
 @given(offset=offsets, quat=quats)
 def test_nonnegative_barrier_means_the_ellipsoids_are_apart(offset, quat):
     obs = box_observation(eef=OBSTACLE_POS + offset, eef_quat=quat)
-    rotation = quat_xyzw_to_matrix(quat)
+    rotation = quat_xyzw_to_mat(quat)
     centre, q_ee = FILTER.end_effector.placed(obs["eef_pos"], rotation)
     obs_centre, q_obs = FILTER.obstacle_ellipsoid(obs)
     h, _ = barrier(centre, q_ee, obs_centre, q_obs)
@@ -120,7 +122,9 @@ def test_barrier_is_exact_for_equal_spheres(distance):
     np.testing.assert_allclose(grad, [1.0 / 0.1, 0.0, 0.0])
 
 
-def test_obstacle_ellipsoid_encloses_the_points_when_posed_and_moved():
+def test_obstacle_ellipsoid_encloses_the_points_when_posed_and_moved(monkeypatch):
+    shapes = ShapeCache()
+    monkeypatch.setattr(obstacle_view, "SHAPES", shapes)
     flt = CBFFilter()
     yaw = np.array([0.0, 0.0, np.sin(0.4), np.cos(0.4)])
     for centre, quat in ((OBSTACLE_POS, (0, 0, 0, 1)), (OBSTACLE_POS + [0.1, -0.05, 0.0], yaw)):
@@ -128,11 +132,11 @@ def test_obstacle_ellipsoid_encloses_the_points_when_posed_and_moved():
         c, q = flt.obstacle_ellipsoid(obs)
         diff = obs["obstacle_points"].astype(np.float64) - c
         assert np.all(np.einsum("ni,ij,nj->n", diff, np.linalg.inv(q), diff) <= 1.0 + 1e-6)
-    assert len(flt._fits) == 1  # one shape, fitted once in its own frame
+    assert len(shapes) == 1 and "mvee" in shapes.lookup(obstacle_local_points(obs)).products  # fitted once
 
 
 def test_end_effector_ellipsoid_sits_above_the_grip_site():
-    centre, q = EndEffectorEllipsoid().placed(np.zeros(3), quat_xyzw_to_matrix(DOWN))
+    centre, q = EndEffectorEllipsoid().placed(np.zeros(3), quat_xyzw_to_mat(DOWN))
     np.testing.assert_allclose(centre, [0.0, 0.0, 0.056])  # tool axis points down: the wrist is above
     np.testing.assert_allclose(np.sort(np.sqrt(np.linalg.eigvalsh(q))), [0.06, 0.11, 0.12])
 

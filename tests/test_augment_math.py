@@ -16,12 +16,12 @@ from detaug_gym.augment.arcs import (
     bulge_direction,
     label_to_arc,
     min_jerk,
-    slerp,
     smooth_trapezoid,
 )
 from detaug_gym.augment.detaug import label_size, make_label, suite_of
 from detaug_gym.augment.plan import ArcSample, Timing, build_plan
 from detaug_gym.augment.segment import SegmentConfig, Transit, closed_runs, segment_gripper
+from detaug_gym.rotations import slerp
 
 coord = st.floats(-1.0, 1.0, allow_nan=False)
 point = st.tuples(coord, coord, coord).map(np.array)

@@ -12,16 +12,16 @@ import pytest
 
 import detaug_gym  # noqa: F401
 from detaug_gym.augment.__main__ import main as augment_main
-from detaug_gym.augment.arcs import arc_points, min_jerk, slerp
+from detaug_gym.augment.arcs import arc_points, min_jerk
 from detaug_gym.augment.context import SourceContext, reset_to_demo
 from detaug_gym.augment.detaug import DetAugConfig, augment_source
-from detaug_gym.augment.ik import quat_xyzw_to_mat, rotation_error
-from detaug_gym.augment.plan import build_plan, rotations
+from detaug_gym.augment.plan import build_plan
 from detaug_gym.augment.replay import length_limit, run_plan, tail_steps
 from detaug_gym.collect import record_episode
 from detaug_gym.data import DatasetWriter, load
 from detaug_gym.policies import make_policy
 from detaug_gym.rollout import step_limit
+from detaug_gym.rotations import quat_xyzw_to_mat, rotation_error, slerp
 
 ENV_ID = "SafeLibero-Spatial-Free-v0"
 
@@ -53,7 +53,7 @@ def test_ik_reproduces_target_poses(env, demo):
     tr = ctx.segmentation.transits[0]
     s = min_jerk(np.linspace(0, 1, 40))
     pos = arc_points(ctx.pos[tr.start], ctx.pos[tr.end], 0.5 * np.pi, 0.5 * np.pi, s)
-    rot = rotations(slerp(ctx.quat[tr.start], ctx.quat[tr.end], s))
+    rot = quat_xyzw_to_mat(slerp(ctx.quat[tr.start], ctx.quat[tr.end], s))
     ctx.ik.load(ctx.qpos[tr.start])
     result = ctx.ik.solve_path(ctx.qpos[tr.start, ctx.scene.arm_qpos], pos, rot)
     assert result.solved(ctx.ik.config)

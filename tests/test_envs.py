@@ -6,6 +6,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import detaug_gym  # noqa: F401
+from detaug_gym.actions import ACTION_DIM, GRIPPER_OPEN, POS_SCALE
 from detaug_gym.envs import NEWTON_IDS, SAFE_LIBERO_IDS
 from detaug_gym.envs.safe_libero import SafeLiberoEnv
 
@@ -95,9 +96,9 @@ def _push_obstacle(env, seed):
         goal = target.copy()
         if step < 40:  # first come down beside the obstacle, then sweep through it
             goal[:2] += np.array([0.0, -0.12])
-        action = np.zeros(7, np.float32)
-        action[:3] = np.clip((goal - obs["eef_pos"]) / 0.05, -1, 1)
-        action[6] = -1
+        action = np.zeros(ACTION_DIM, np.float32)
+        action[:3] = np.clip((goal - obs["eef_pos"]) / POS_SCALE, -1, 1)
+        action[6] = GRIPPER_OPEN
         obs, _, terminated, truncated, info = env.step(action)
         infos.append(info)
     return infos

@@ -19,9 +19,9 @@ from detaug_gym.geometry import (
     panda_model,
     penetration_cost,
     plan_collision_cost,
-    quat_xyzw_to_matrix,
 )
 from detaug_gym.geometry.meshes import body_collision_mesh
+from detaug_gym.rotations import quat_xyzw_to_mat
 
 ARM = [f"robot0_joint{i}" for i in range(1, 8)]
 FINGERS = ["gripper0_finger_joint1", "gripper0_finger_joint2"]
@@ -70,7 +70,7 @@ def _box_obs(centre, half, yaw: float = 0.0, seed: int = 0) -> dict[str, np.ndar
     mesh = trimesh.creation.box(extents=2.0 * np.asarray(half))
     points, _ = trimesh.sample.sample_surface(mesh, 256, seed=seed)
     quat = np.array([0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)])
-    world = points @ quat_xyzw_to_matrix(quat).T + centre
+    world = points @ quat_xyzw_to_mat(quat).T + centre
     return {"obstacle_points": world.astype(np.float32), "obstacle_pose": np.concatenate([centre, quat]),
             "obstacle_size": np.asarray(half, np.float32), "obstacle_mask": np.ones(1, np.float32),
             "gripper_qpos": np.array([0.04, -0.04], np.float32)}
@@ -319,7 +319,7 @@ def test_mvee_recovers_an_ellipsoid_from_its_surface():
     rng = np.random.default_rng(1)
     directions = rng.normal(size=(300, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    rot = quat_xyzw_to_matrix(np.array([0.2, -0.1, 0.3, 0.9]))
+    rot = quat_xyzw_to_mat(np.array([0.2, -0.1, 0.3, 0.9]))
     points = (directions * [0.02, 0.05, 0.11]) @ rot.T + [0.1, 0.2, 0.9]
     ellipsoid = min_volume_ellipsoid(points)
     np.testing.assert_allclose(ellipsoid.semi_axes, [0.02, 0.05, 0.11], rtol=1e-3)

@@ -8,7 +8,7 @@ import pytest
 
 import detaug_gym  # noqa: F401
 from detaug_gym.policies import available_policies, make_policy
-from detaug_gym.policies.scripted import DemoStyle, mat_to_rotvec, quat_to_mat
+from detaug_gym.policies.scripted import DemoStyle
 from detaug_gym.policies.scripted_tasks import identify_task
 
 
@@ -36,17 +36,6 @@ PLATE = [0.05, 0.2, 0.903, 0, 0, 0.7071, 0.7071]
 ])
 def test_identify_task_from_observation(obs, expected):
     assert identify_task(obs) == expected
-
-
-def test_rotation_helpers_round_trip():
-    rng = np.random.default_rng(0)
-    for _ in range(20):
-        q = rng.normal(size=4)
-        q /= np.linalg.norm(q)
-        rot = quat_to_mat(q)
-        np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-12)
-        angle = np.linalg.norm(mat_to_rotvec(rot))
-        assert angle == pytest.approx(2 * np.arccos(min(abs(q[3]), 1.0)), abs=1e-6)
 
 
 def test_styles_vary_with_the_seed_and_repeat_for_the_same_seed():

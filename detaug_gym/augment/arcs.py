@@ -146,22 +146,6 @@ def arc_steps(n_source: int, source_length: float, new_length: float, max_speed:
     return max(keep_speed, controller_cap, min_steps)
 
 
-def slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Spherical interpolation of unit quaternions (any order convention, shortest way) at ``u`` (N,); (N, 4)."""
-    q0 = np.asarray(q0, dtype=np.float64) / np.linalg.norm(q0)
-    q1 = np.asarray(q1, dtype=np.float64) / np.linalg.norm(q1)
-    u = np.atleast_1d(np.asarray(u, dtype=np.float64))
-    dot = float(q0 @ q1)
-    if dot < 0.0:  # q and -q are the same rotation; take the short way round
-        q1, dot = -q1, -dot
-    if dot > 0.9995:  # nearly equal: normalised lerp is exact to rounding and avoids 0/0
-        out = q0 + u[:, None] * (q1 - q0)
-    else:
-        omega = np.arccos(dot)
-        out = (np.sin((1.0 - u) * omega)[:, None] * q0 + np.sin(u * omega)[:, None] * q1) / np.sin(omega)
-    return out / np.linalg.norm(out, axis=1, keepdims=True)
-
-
 def sample_arc(rng: np.random.Generator, phi_range: tuple[float, float],
                theta_range: tuple[float, float]) -> tuple[float, float]:
     """One ``(phi, theta)`` drawn uniformly from the given ranges (radians)."""

@@ -33,10 +33,9 @@ import mujoco
 import numpy as np
 import trimesh
 
-from detaug_gym.augment.arcs import arc_steps, peak_factor, slerp, smooth_trapezoid
+from detaug_gym.augment.arcs import arc_steps, peak_factor, smooth_trapezoid
 from detaug_gym.augment.context import SourceContext, reset_to_demo
 from detaug_gym.augment.detaug import SourceResult, StageConfigs, suite_of
-from detaug_gym.augment.ik import quat_xyzw_to_mat
 from detaug_gym.augment.plan import ArcSample, Plan, Replacement, Timing, splice_transits
 from detaug_gym.augment.planner import (
     PlannerConfig,
@@ -54,6 +53,7 @@ from detaug_gym.augment.planner import (
 from detaug_gym.augment.replay import ReplayConfig, length_limit, run_plan, tail_steps
 from detaug_gym.augment.segment import Transit
 from detaug_gym.envs.suites import get_suite
+from detaug_gym.rotations import quat_xyzw_to_mat, slerp
 
 __all__ = ["DemoGenConfig", "ObstacleShape", "augment_source", "label_size", "suite_of"]
 

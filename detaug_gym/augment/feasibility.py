@@ -24,6 +24,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from detaug_gym.actions import CONTROL_DT
+from detaug_gym.rotations import mat_to_quat_wxyz
+
 GRIPPER_PREFIXES = ("gripper0_", "robot0_right_hand")
 ROBOT_PREFIXES = ("robot0_", "gripper0_")
 
@@ -44,7 +47,7 @@ class FeasibilityConfig:
     max_joint_speed: float = 1.5
     max_joint_accel: float = 12.0
     penetration: float = 0.002
-    dt: float = 0.05
+    dt: float = CONTROL_DT
 
 
 @dataclass(frozen=True)
@@ -58,9 +61,7 @@ class HeldObject:
 
     def world_qpos(self, site_pos: np.ndarray, site_rot: np.ndarray) -> np.ndarray:
         """Free-joint qpos (7,): position and wxyz quaternion of the body for a grip-site pose."""
-        quat = np.zeros(4)
-        mujoco.mju_mat2Quat(quat, (site_rot @ self.offset_rot).reshape(9))
-        return np.concatenate([site_pos + site_rot @ self.offset_pos, quat])
+        return np.concatenate([site_pos + site_rot @ self.offset_pos, mat_to_quat_wxyz(site_rot @ self.offset_rot)])
 
 
 def body_names(model: mujoco.MjModel) -> list[str]:

@@ -3,7 +3,7 @@
 Works on a scratch ``MjData`` (the env's ``data`` is never touched), so the rest of the scene (objects,
 fixtures, the gripper opening) sits wherever the caller put it: the same model serves IK and the contact
 checks of :mod:`detaug_gym.augment.feasibility`. Poses are the grip site's (``eef_pos``/``eef_quat`` of the
-observation); quaternions are xyzw as everywhere in the package.
+observation); quaternions are xyzw as everywhere in the package (:mod:`detaug_gym.rotations`).
 
 Each solve starts from the previous configuration (warm start along the path) and iterates
 
@@ -20,6 +20,10 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+
+# mat_to_quat_xyzw is unused here: augment/context.py still imports it from this module and is frozen while the
+# config rewrite lands. Drop it from this line once context.py imports it from detaug_gym.rotations.
+from detaug_gym.rotations import mat_to_quat_xyzw, rotation_error  # noqa: F401
 
 
 @dataclass(frozen=True)
@@ -53,30 +57,6 @@ class IKResult:
 
     def solved(self, config: IKConfig) -> bool:
         return bool(np.all(self.pos_err <= config.pos_tol) and np.all(self.rot_err <= config.rot_tol))
-
-
-def quat_xyzw_to_mat(quat: np.ndarray) -> np.ndarray:
-    """3x3 rotation of an xyzw quaternion."""
-    q = np.asarray(quat, dtype=np.float64)
-    mat = np.zeros(9)
-    mujoco.mju_quat2Mat(mat, np.array([q[3], q[0], q[1], q[2]]) / np.linalg.norm(q))
-    return mat.reshape(3, 3)
-
-
-def mat_to_quat_xyzw(mat: np.ndarray) -> np.ndarray:
-    """xyzw quaternion of a 3x3 rotation."""
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.asarray(mat, dtype=np.float64).reshape(9))
-    return quat[[1, 2, 3, 0]]
-
-
-def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
-    """Rotation vector of ``target @ current.T`` (the world-frame rotation taking current onto target)."""
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, (target @ current.T).reshape(9))
-    vel = np.zeros(3)
-    mujoco.mju_quat2Vel(vel, quat, 1.0)
-    return vel
 
 
 class ArmIK:

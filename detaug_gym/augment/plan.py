@@ -20,12 +20,15 @@ from detaug_gym.augment.arcs import (
     arc_steps,
     min_jerk,
     peak_factor,
-    slerp,
     smooth_trapezoid,
     source_profile,
 )
-from detaug_gym.augment.ik import quat_xyzw_to_mat
 from detaug_gym.augment.segment import Transit
+
+# augment/context.py (frozen while the config rewrite lands) imports ``rotations`` ((N, 4) xyzw -> (N, 3, 3))
+# from this module; drop this alias once it imports quat_xyzw_to_mat from detaug_gym.rotations.
+from detaug_gym.rotations import quat_xyzw_to_mat as rotations  # noqa: F401
+from detaug_gym.rotations import slerp
 
 
 @dataclass(frozen=True)
@@ -188,7 +191,3 @@ def splice_transits(pos: np.ndarray, quat: np.ndarray, command: np.ndarray,
     return Plan(np.concatenate(steps).astype(np.int64), np.concatenate(frames).astype(np.int64),
                 np.concatenate(tpos), np.concatenate(tquat), np.concatenate(grip).astype(np.float64), spans)
 
-
-def rotations(quats: np.ndarray) -> np.ndarray:
-    """(N, 4) xyzw -> (N, 3, 3)."""
-    return np.stack([quat_xyzw_to_mat(q) for q in quats])

@@ -5,10 +5,12 @@ gripper command bit for bit, and the arm's OSC goal in the world frame. An OSC_P
 relative to the end-effector pose at which it is sent, so once an arc has put the arm in a (slightly)
 different state, re-sending the source's raw deltas would re-play the source's goals shifted by that
 error, and the error never closes (a 4 mm miss at the window start grew to 1.7 cm at the grasp in our
-tests). Instead the copied step sends the delta that puts the controller's goal where the source's was:
+tests). Instead the copied step sends the delta that puts the controller's goal where the source's was
+(:func:`~detaug_gym.actions.action_to_goal` then :func:`~detaug_gym.actions.goal_to_action`, with
+``s = POS_SCALE``, ``r = ROT_SCALE`` of :mod:`detaug_gym.actions`):
 
-    goal_src = p_src + 0.05 a_src[:3],  R_goal_src = exp(0.5 a_src[3:6]) R_src,
-    a[:3] = (goal_src - p) / 0.05,      a[3:6] = rotvec(R_goal_src R^T) / 0.5,   a[6] = a_src[6],
+    goal_src = p_src + s a_src[:3],  R_goal_src = exp(r a_src[3:6]) R_src,
+    a[:3] = (goal_src - p) / s,      a[3:6] = rotvec(R_goal_src R^T) / r,   a[6] = a_src[6],
 
 which equals the source's action exactly when the state equals the source's. Steps before the first arc
 send the source's actions unchanged (``raw_prefix``), so an unbent demo replays bit for bit.
@@ -16,9 +18,9 @@ send the source's actions unchanged (``raw_prefix``), so an unbent demo replays 
 Transit steps are closed loop: the OSC_POSE delta that moves the controller's goal from the *measured*
 end-effector pose to the next arc target,
 
-    a_pos = (p*_{t+1} + lead (p*_{t+1} - p*_t) - p_t) / 0.05,   a_rot = rotvec(R*_{t+1} R_t^T) / 0.5,
+    a_pos = (p*_{t+1} + lead (p*_{t+1} - p*_t) - p_t) / s,   a_rot = rotvec(R*_{t+1} R_t^T) / r,
 
-clipped to [-1, 1] (the scales robosuite's OSC_POSE uses with ``control_delta``). The ``lead`` term feeds
+clipped to [-1, 1]. The ``lead`` term feeds
 the target's own velocity forward: robosuite's OSC is a critically damped spring towards a goal that is
 reset every step, so without it the arm lags a moving target. The arc ends with zero speed (min-jerk), so
 the arm is on the source's pose when the copied interaction window starts.
@@ -35,13 +37,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from detaug_gym.actions import action_to_goal, goal_to_action
 from detaug_gym.augment.feasibility import grip_frame_position
-from detaug_gym.augment.ik import quat_xyzw_to_mat, rotation_error
 from detaug_gym.augment.plan import Plan
 from detaug_gym.rollout import Hook, Step, rollout, step_limit, until_done
-
-POS_SCALE = 0.05  # m per unit action, robosuite OSC_POSE output_max
-ROT_SCALE = 0.5  # rad per unit action
+from detaug_gym.rotations import quat_xyzw_to_mat
 
 
 @dataclass(frozen=True)
@@ -86,36 +86,18 @@ class Recording:
 
 def tracking_action(pos: np.ndarray, rot: np.ndarray, target_pos: np.ndarray, target_rot: np.ndarray,
                     prev_target_pos: np.ndarray, grip: float, lead: float) -> np.ndarray:
-    """The OSC_POSE delta action (7,) towards the next target (see the module docstring)."""
-    action = np.zeros(7)
+    """The OSC_POSE delta action (7,) from the pose ``pos`` (3,), ``rot`` (3, 3) towards the next target (see the
+    module docstring)."""
     goal = target_pos + lead * (target_pos - prev_target_pos)
-    action[:3] = np.clip((goal - pos) / POS_SCALE, -1.0, 1.0)
-    action[3:6] = np.clip(rotation_error(target_rot, rot) / ROT_SCALE, -1.0, 1.0)
-    action[6] = grip
-    return action
+    return goal_to_action(pos, rot, goal, target_rot, grip)
 
 
 def source_goal_action(pos: np.ndarray, rot: np.ndarray, src_pos: np.ndarray, src_rot: np.ndarray,
                        src_action: np.ndarray) -> np.ndarray:
-    """The action (7,) whose OSC goal equals the goal the source's ``src_action`` set from its own pose."""
-    src_action = np.clip(np.asarray(src_action, dtype=np.float64), -1.0, 1.0)
-    goal_pos = src_pos + POS_SCALE * src_action[:3]
-    goal_rot = axis_angle_matrix(ROT_SCALE * src_action[3:6]) @ src_rot
-    action = np.zeros(7)
-    action[:3] = np.clip((goal_pos - pos) / POS_SCALE, -1.0, 1.0)
-    action[3:6] = np.clip(rotation_error(goal_rot, rot) / ROT_SCALE, -1.0, 1.0)
-    action[6] = src_action[6]
-    return action
-
-
-def axis_angle_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (Rodrigues)."""
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-12:
-        return np.eye(3)
-    k = rotvec / angle
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * kx @ kx
+    """The action (7,) whose OSC goal equals the goal the source's ``src_action`` (7,) set from its own pose
+    ``src_pos`` (3,), ``src_rot`` (3, 3), sent from the pose ``pos``, ``rot``."""
+    goal_pos, goal_rot = action_to_goal(src_pos, src_rot, src_action)
+    return goal_to_action(pos, rot, goal_pos, goal_rot, float(np.clip(src_action[6], -1.0, 1.0)))
 
 
 def distance_to_polyline(point: np.ndarray, poly: np.ndarray) -> float:

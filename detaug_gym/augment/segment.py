@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-CONTROL_DT = 0.05  # s per control step (20 Hz)
+from detaug_gym.actions import CONTROL_DT
 
 
 @dataclass(frozen=True)

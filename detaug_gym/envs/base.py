@@ -59,7 +59,7 @@ class ObstacleManipulationEnv(gym.Env):
         ``object_mask`` (S,), ``task_id`` (T,) one-hot, ``obstacle_points`` (256, 3) world-frame surface
         samples, ``obstacle_pose`` (7,), ``obstacle_size`` (3,) half-extents, ``obstacle_mask`` (1,).
         Obstacle entries are zero (mask 0) without an obstacle.
-    Action: ``Box(-1, 1, (7,))``: OSC_POSE delta (scaled to 0.05 m / 0.5 rad per step) and the gripper
+    Action: ``Box(-1, 1, (7,))``: OSC_POSE delta (scales in :mod:`detaug_gym.actions`) and the gripper
         (-1 open, +1 close). Wrong shapes and non-finite values raise ``ValueError``.
     Info (every step): ``is_success``, ``collision`` (latched), ``robot_obstacle_contact``,
         ``obstacle_displacement``, ``min_clearance`` (m, robot collision geometry to the obstacle; inf

@@ -18,6 +18,8 @@ import mujoco
 import numpy as np
 import torch
 
+from detaug_gym.rotations import quat_wxyz_to_mat, quat_xyzw_to_mat, skew
+
 ARM_JOINTS = tuple(f"robot0_joint{i}" for i in range(1, 8))
 FINGER_JOINTS = ("gripper0_finger_joint1", "gripper0_finger_joint2")
 EEF_SITE = "gripper0_grip_site"
@@ -111,7 +113,7 @@ class PandaKinematics:
             if parent not in order and parent != root_parent:
                 raise ValueError(f"robot body {names[b]!r} is not under the robot's root")
             bodies.append(_Body(names[b], order.get(parent, -1), model.body_pos[b].copy(),
-                                _quat_to_mat(model.body_quat[b]), _body_joints(model, b, slots)))
+                                quat_wxyz_to_mat(model.body_quat[b]), _body_joints(model, b, slots)))
         links = [i for i, b in enumerate(robot) if _has_collision_geom(model, b)]
         site = _id(model, mujoco.mjtObj.mjOBJ_SITE, eef_site)
         eef_body = int(model.site_bodyid[site])
@@ -119,7 +121,7 @@ class PandaKinematics:
             raise ValueError(f"site {eef_site!r} is not on a robot body")
         fingers = [_open_limit(model, _id(model, mujoco.mjtObj.mjOBJ_JOINT, j)) for j in finger_joints]
         return cls(bodies, base[0], base[1], links, [robot[i] for i in links], order[eef_body],
-                   model.site_pos[site].copy(), _quat_to_mat(model.site_quat[site]), np.array(fingers))
+                   model.site_pos[site].copy(), quat_wxyz_to_mat(model.site_quat[site]), np.array(fingers))
 
     def with_base(self, rotation: np.ndarray, position: np.ndarray) -> PandaKinematics:
         """A copy whose base frame (see :attr:`base_rotation`) sits at the given world pose."""
@@ -140,7 +142,7 @@ class PandaKinematics:
         res = origin.forward(torch.as_tensor(np.asarray(joint_pos, np.float64)),
                              None if finger_pos is None else torch.as_tensor(np.asarray(finger_pos, np.float64)))
         r_be, p_be = res.eef_rotation.numpy(), res.eef_position.numpy()  # eef in the base frame
-        r_we = _quat_to_mat(np.asarray(eef_quat_xyzw, np.float64)[[3, 0, 1, 2]])
+        r_we = quat_xyzw_to_mat(eef_quat_xyzw)
         r_wb = r_we @ r_be.T
         return self.with_base(r_wb, np.asarray(eef_pos, np.float64) - r_wb @ p_be)
 
@@ -208,14 +210,14 @@ class PandaKinematics:
                 return torch.as_tensor(np.asarray(x, np.float64), dtype=dtype, device=device)[..., None]
             bodies = []
             for body in self._bodies:
-                joints = [{"anchor": t(j.anchor), "axis": t(j.axis), "cross": t(_cross_matrix(j.axis)),
-                           "cross2": t(_cross_matrix(j.axis) @ _cross_matrix(j.axis)), "eye": t(np.eye(3))}
+                joints = [{"anchor": t(j.anchor), "axis": t(j.axis), "cross": t(skew(j.axis)),
+                           "cross2": t(skew(j.axis) @ skew(j.axis)), "eye": t(np.eye(3))}
                           for j in body.joints]
                 bodies.append({"rot": t(body.rot), "pos": t(body.pos), "joints": joints,
                                "zero_offset": not np.any(body.pos),
                                "rigid_same_axes": not body.joints and np.array_equal(body.rot, np.eye(3))})
                 if len(body.joints) == 1 and body.joints[0].hinge and not np.any(body.joints[0].anchor):
-                    k = _cross_matrix(body.joints[0].axis)
+                    k = skew(body.joints[0].axis)
                     bodies[-1]["fused"] = (t(body.rot), t(body.rot @ k), t(body.rot @ k @ k))
             self._consts[key] = {"bodies": bodies, "eef_rot": t(self._eef[2]), "eef_pos": t(self._eef[1]),
                                  "fingers": t(self.default_fingers)[:, 0]}
@@ -273,7 +275,7 @@ def _static_world_pose(model: mujoco.MjModel, body: int) -> tuple[np.ndarray, np
         body = int(model.body_parentid[body])
     for b in reversed(chain):
         pos = pos + rot @ model.body_pos[b]
-        rot = rot @ _quat_to_mat(model.body_quat[b])
+        rot = rot @ quat_wxyz_to_mat(model.body_quat[b])
     return rot, pos
 
 
@@ -292,17 +294,6 @@ def _id(model: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:
     if idx < 0:
         raise KeyError(f"{name!r} not in the model")
     return idx
-
-
-def _quat_to_mat(quat_wxyz: np.ndarray) -> np.ndarray:
-    out = np.zeros(9)
-    q = np.asarray(quat_wxyz, np.float64)
-    mujoco.mju_quat2Mat(out, q / np.linalg.norm(q))
-    return out.reshape(3, 3)
-
-
-def _cross_matrix(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def panda_model() -> mujoco.MjModel:

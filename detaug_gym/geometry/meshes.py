@@ -10,6 +10,8 @@ import mujoco
 import numpy as np
 import trimesh
 
+from detaug_gym.rotations import quat_wxyz_to_mat
+
 
 def is_collision_geom(model: mujoco.MjModel, geom_id: int) -> bool:
     """True where the geom takes part in contacts (visual-only geoms have contype = conaffinity = 0)."""
@@ -49,9 +51,7 @@ def geom_trimesh(model: mujoco.MjModel, geom_id: int) -> trimesh.Trimesh:
 def geom_pose_in_body(model: mujoco.MjModel, geom_id: int) -> np.ndarray:
     """4x4 transform of the geom frame in its body's frame."""
     transform = np.eye(4)
-    rot = np.zeros(9)
-    mujoco.mju_quat2Mat(rot, model.geom_quat[geom_id])
-    transform[:3, :3] = rot.reshape(3, 3)
+    transform[:3, :3] = quat_wxyz_to_mat(model.geom_quat[geom_id])
     transform[:3, 3] = model.geom_pos[geom_id]
     return transform
 
@@ -90,9 +90,7 @@ def _relative_body_pose(model: mujoco.MjModel, body_id: int, root_id: int) -> np
     b = body_id
     while b != root_id:
         local = np.eye(4)
-        rot = np.zeros(9)
-        mujoco.mju_quat2Mat(rot, model.body_quat[b])
-        local[:3, :3] = rot.reshape(3, 3)
+        local[:3, :3] = quat_wxyz_to_mat(model.body_quat[b])
         local[:3, 3] = model.body_pos[b]
         transform = local @ transform
         b = int(model.body_parentid[b])

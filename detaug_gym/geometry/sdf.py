@@ -12,7 +12,8 @@ Speed: the exact distance costs ~50 us a point, so :func:`obstacle_sdf` bakes a 
 over the hull's box padded by 0.10 m) in the obstacle's own frame (from ``obstacle_pose``) and answers
 queries by trilinear interpolation in torch, differentiable in the query points. Baking in the obstacle
 frame means a grid is baked once per obstacle shape and re-used across episodes and when the obstacle is
-pushed; grids are cached by the shape's points. A query outside the grid gets the value at the nearest
+pushed; hulls and grids live in the shared shape cache (:data:`~detaug_gym.geometry.obstacle_view.SHAPES`).
+A query outside the grid gets the value at the nearest
 point of the grid's box plus the distance to it: an upper bound on the true distance (tight in front of
 a face of the box, up to ~1.7x off diagonally), always > ``padding`` > any hinge margin, so costs never
 see it; it stays continuous and differentiable for guidance.
@@ -20,8 +21,6 @@ see it; it stays continuous and differentiable for guidance.
 
 from __future__ import annotations
 
-import hashlib
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import fcl
@@ -29,11 +28,11 @@ import numpy as np
 import torch
 import trimesh
 
+from detaug_gym.geometry.obstacle_view import has_obstacle, obstacle_frame, obstacle_shape
+
 GRID_SPACING = 0.01  # m; 2 cm cells leave the 2.8 cm thick book with almost no interior nodes
 GRID_PADDING = 0.10  # m beyond the hull's box; covers every clearance margin in use
 NO_OBSTACLE_DISTANCE = 10.0  # m, returned everywhere when the observation has no obstacle (mask 0)
-_CACHE_SIZE = 32
-_grid_cache: OrderedDict[tuple, tuple[trimesh.Trimesh, SDFGrid]] = OrderedDict()
 
 
 @dataclass(frozen=True)
@@ -196,34 +195,16 @@ def obstacle_sdf(obs: dict[str, np.ndarray], spacing: float = GRID_SPACING,
                  padding: float = GRID_PADDING) -> ObstacleSDF:
     """The obstacle SDF of an env observation (one env, unbatched).
 
-    Reads ``obstacle_points`` (N, 3) world surface samples, ``obstacle_pose`` (7,) pos + xyzw quat and
-    ``obstacle_mask`` (1,). With mask 0 it returns the empty SDF. Grids are cached by the obstacle's
-    points in its own frame (rounded to 1 mm), so each obstacle shape is baked once per process.
+    Reads the obstacle entries through :mod:`~detaug_gym.geometry.obstacle_view`: ``obstacle_points``
+    (N, 3) world surface samples, ``obstacle_pose`` (7,) pos + xyzw quat and ``obstacle_mask`` (1,). Without
+    an obstacle it returns the empty SDF. The hull and the grid are made once per obstacle shape (its points
+    in its own frame) and process, and re-posed for every observation.
     """
-    if float(np.asarray(obs["obstacle_mask"]).reshape(-1)[0]) < 0.5:
+    if not has_obstacle(obs):
         return ObstacleSDF(None)
-    pose = np.asarray(obs["obstacle_pose"], np.float64)
-    rotation = quat_xyzw_to_matrix(pose[3:7])
-    local = (np.asarray(obs["obstacle_points"], np.float64) - pose[:3]) @ rotation
-    # Key on the shape in its own frame at 1 mm: float32 observations jitter far below that.
-    key = (hashlib.sha1(np.round(local, 3).tobytes()).hexdigest(), float(spacing), float(padding))
-    cached = _grid_cache.get(key)
-    if cached is None:
-        mesh = convex_hull(local)
-        cached = (mesh, bake_sdf_grid(mesh, spacing, padding))
-        _grid_cache[key] = cached
-        if len(_grid_cache) > _CACHE_SIZE:
-            _grid_cache.popitem(last=False)
-    else:
-        _grid_cache.move_to_end(key)
-    return ObstacleSDF(cached[1], rotation, pose[:3], cached[0])
+    position, rotation = obstacle_frame(obs)
+    shape = obstacle_shape(obs)
+    mesh = shape.product("hull", convex_hull)
+    grid = shape.product(("sdf", float(spacing), float(padding)), lambda _: bake_sdf_grid(mesh, spacing, padding))
+    return ObstacleSDF(grid, rotation, position, mesh)
 
-
-def quat_xyzw_to_matrix(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrix ``(3, 3)`` of a quaternion in xyzw order (normalised first)."""
-    x, y, z, w = np.asarray(quat, np.float64) / np.linalg.norm(quat)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])

@@ -37,24 +37,22 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from detaug_gym.actions import ACTION_DIM
 from detaug_gym.data.dataset import Demo, load
 from detaug_gym.models.normalize import Normalizer
+from detaug_gym.rotations import quat_xyzw_to_mat
 
 PLAN_STATE_KEYS = ("robot_joint_pos", "gripper_qpos", "eef_pos")
 OBS_KEYS = ("robot_joint_pos", "robot_joint_vel", "gripper_qpos", "eef_pos", "eef_quat",
             "object_poses", "object_mask", "task_id", "object_rel_pos")
 DERIVED_KEYS = {"object_rel_pos": ("object_poses", "eef_pos", "object_mask")}  # computed, not stored
-ACTION_DIM = 7
 
 
 # ---------------------------------------------------------------------------------------------- features
 def quat_to_rot6d(quat: np.ndarray) -> np.ndarray:
     """xyzw quaternions (..., 4) -> first two rotation-matrix columns (..., 6); zeros stay finite."""
-    q = quat / np.maximum(np.linalg.norm(quat, axis=-1, keepdims=True), 1e-8)
-    x, y, z, w = np.moveaxis(q, -1, 0)
-    col0 = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + z * w), 2 * (x * z - y * w)], axis=-1)
-    col1 = np.stack([2 * (x * y - z * w), 1 - 2 * (x * x + z * z), 2 * (y * z + x * w)], axis=-1)
-    return np.concatenate([col0, col1], axis=-1)
+    rot = quat_xyzw_to_mat(quat)
+    return np.concatenate([rot[..., :, 0], rot[..., :, 1]], axis=-1)
 
 
 def source_keys(keys: tuple[str, ...]) -> tuple[str, ...]:

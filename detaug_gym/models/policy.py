@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from detaug_gym.actions import GRIPPER_CLOSE, GRIPPER_OPEN
 from detaug_gym.models.checkpoint import Checkpoint, load_checkpoint
 from detaug_gym.models.dataset import observation_vector
 from detaug_gym.models.flow import Guidance, Inpaint, remaining_steps, sample
@@ -129,7 +130,7 @@ class FlowPolicy:
         """Env actions (..., H, 7) float32 of plans in physical units: clipped, gripper snapped."""
         actions = np.asarray(plan[..., self.layout.action_slice], dtype=np.float32).clip(-1.0, 1.0)
         if self.binarize_gripper:
-            actions[..., -1] = np.where(actions[..., -1] >= 0.0, 1.0, -1.0)
+            actions[..., -1] = np.where(actions[..., -1] >= 0.0, GRIPPER_CLOSE, GRIPPER_OPEN)
         return actions
 
     def plan(self, obs: Mapping[str, np.ndarray], labels: np.ndarray | torch.Tensor | None = None, *,

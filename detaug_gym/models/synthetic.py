@@ -12,6 +12,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from detaug_gym.actions import POS_SCALE
+
 HOME = np.array([0.0, 0.2, 0.0, -2.4, 0.0, 2.6, 0.8])
 
 
@@ -29,7 +31,7 @@ def synthetic_demo(rng: np.random.Generator, length: int, task: int, n_tasks: in
         + np.outer(np.sin(np.pi * progress), np.r_[bend, bend, 0.0])
     grip = np.where(phase > 0.6, 1.0, -1.0)
     actions = np.zeros((length, 7))
-    actions[:-1, :3] = np.clip(np.diff(eef, axis=0) / 0.05 * 5, -1, 1)
+    actions[:-1, :3] = np.clip(np.diff(eef, axis=0) / POS_SCALE * 5, -1, 1)
     actions[:, 6] = grip
     poses = np.zeros((length, n_slots, 7))
     poses[:, 0, :3] = obj

@@ -8,8 +8,8 @@ Geometry (all in the world frame, from the observation only):
 
 - **Obstacle**: the minimum-volume enclosing ellipsoid (Khachiyan, :func:`~detaug_gym.geometry.min_volume_ellipsoid`)
   of ``obstacle_points``. It is fitted once per obstacle shape in the obstacle's own frame (from
-  ``obstacle_pose``) and moved with the pose, so a pushed obstacle costs no new fit (points that match a
-  cached shape to within 1 mm reuse its fit: float32 poses jitter the local points by ~1e-6 m).
+  ``obstacle_pose``) and moved with the pose, so a pushed obstacle costs no new fit (the fit lives in the shared
+  shape cache of :mod:`~detaug_gym.geometry.obstacle_view`, next to the SDF grids of the same shape).
 - **End effector**: an ellipsoid fixed to the grip site (``eef_pos`` / ``eef_quat``): semi-axes 0.12 m along
   the finger travel (grip-site x: the palm is ~0.2 m wide), 0.06 m along the palm normal (y) and 0.11 m
   along the tool axis (z), centred 0.056 m from the grip site towards the wrist, so it covers the hand
@@ -28,10 +28,11 @@ centre, and its linearisation is a lower bound (see below). Over a dense grid ``
 exactly "the ellipsoids do not overlap" (exact for two spheres of equal radius: ``h = D / (r1 + r2) - 1``);
 a single fixed member (e.g. the smallest-trace one) would be a much more conservative test.
 
-Constraint: ``dh/dt >= -alpha h`` in discrete time with ``dt = 0.05 s`` (20 Hz). The commanded
-end-effector velocity is ``v = 0.05 a[:3] / dt`` (OSC_POSE: ``goal = eef_pos + 0.05 a[:3]``); the commanded
-rotation ``R' = exp(0.5 a[3:6]) R`` is kept as proposed and enters exactly (``h_r``, ``g`` = value and
-gradient of ``h`` at the rotated pose), the translation linearly::
+Constraint: ``dh/dt >= -alpha h`` in discrete time with ``dt = CONTROL_DT`` (20 Hz). The commanded
+end-effector velocity is ``v = POS_SCALE a[:3] / dt`` (OSC_POSE, :func:`~detaug_gym.actions.action_to_goal`:
+``goal = eef_pos + POS_SCALE a[:3]``); the commanded rotation ``R' = exp(ROT_SCALE a[3:6]) R`` is kept as
+proposed and enters exactly (``h_r``, ``g`` = value and gradient of ``h`` at the rotated pose), the
+translation linearly::
 
     h_r + g . (v dt)  >=  (1 - alpha dt) h
 
@@ -58,17 +59,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from detaug_gym.actions import CONTROL_DT, POS_SCALE, action_to_goal
 from detaug_gym.geometry.ellipsoid import min_volume_ellipsoid
-from detaug_gym.geometry.sdf import quat_xyzw_to_matrix
+from detaug_gym.geometry.obstacle_view import has_obstacle, obstacle_frame, obstacle_shape
 from detaug_gym.policies.base import make_policy, policy_class
 from detaug_gym.policies.options import AegisOptions
+from detaug_gym.rotations import quat_xyzw_to_mat
 
-POSITION_SCALE = 0.05  # m per action unit per step (OSC_POSE output_max)
-ROTATION_SCALE = 0.5  # rad per action unit per step
-CONTROL_DT = 0.05  # s (20 Hz)
 EE_SEMI_AXES = (0.12, 0.06, 0.11)  # m, grip-site frame: finger travel x, palm normal y, tool axis z
 EE_OFFSET = 0.056  # m from the grip site towards the wrist (along -z of the grip site)
-SHAPE_TOLERANCE = 1e-3  # m: obstacle points this close in the obstacle frame reuse the cached ellipsoid fit
 
 
 @dataclass(frozen=True)
@@ -88,16 +87,6 @@ class FilterStep:
     feasible: bool = True
 
 
-def axis_angle_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """Rotation matrix ``(3, 3)`` of an axis-angle vector ``(3,)`` (Rodrigues)."""
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-12:
-        return np.eye(3)
-    k = np.asarray(rotvec, np.float64) / angle
-    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * cross @ cross
-
-
 @dataclass(frozen=True)
 class EndEffectorEllipsoid:
     """The end effector as an ellipsoid fixed to the grip site.
@@ -115,6 +104,12 @@ class EndEffectorEllipsoid:
         centre = np.asarray(eef_pos, np.float64) - self.offset * rotation[:, 2]
         scaled = rotation * np.asarray(self.semi_axes, np.float64)  # columns: axis * semi-axis
         return centre, scaled @ scaled.T
+
+
+def _local_ellipsoid(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centre ``(3,)`` and covariance form ``Q`` ``(3, 3)`` of the MVEE of ``(N, 3)`` points."""
+    fit = min_volume_ellipsoid(points)
+    return fit.centre, np.linalg.inv(fit.shape)
 
 
 MINKOWSKI_P = np.logspace(-2.0, 2.0, 97)  # members of the enclosing family; p = 1 (equal sizes) included
@@ -145,52 +140,41 @@ class CBFFilter:
         alpha: class-K gain of ``dh/dt >= -alpha h`` (1/s).
         dt: control period (s); ``alpha * dt`` must lie in (0, 1].
         end_effector: the end-effector ellipsoid.
-        position_scale, rotation_scale: OSC_POSE scaling of the action (m, rad per unit).
+
+    Actions are read with the package's OSC_POSE convention (:mod:`detaug_gym.actions`).
     """
 
     def __init__(self, alpha: float = 10.0, dt: float = CONTROL_DT,
-                 end_effector: EndEffectorEllipsoid | None = None,
-                 position_scale: float = POSITION_SCALE, rotation_scale: float = ROTATION_SCALE) -> None:
+                 end_effector: EndEffectorEllipsoid | None = None) -> None:
         if not (alpha > 0 and dt > 0 and alpha * dt <= 1.0):
             raise ValueError(f"need alpha > 0, dt > 0 and alpha * dt <= 1, got alpha={alpha}, dt={dt}")
         self.end_effector = end_effector or EndEffectorEllipsoid()
         if len(self.end_effector.semi_axes) != 3 or min(self.end_effector.semi_axes) <= 0:
             raise ValueError(f"end-effector semi-axes must be 3 positive lengths, got {self.end_effector.semi_axes}")
-        if position_scale <= 0:
-            raise ValueError(f"position_scale must be > 0, got {position_scale}")
         self.alpha, self.dt = float(alpha), float(dt)
-        self.position_scale, self.rotation_scale = float(position_scale), float(rotation_scale)
-        self._fits: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (local points, centre, Q), newest first
         self._qp = BarrierQP()
 
     # ------------------------------------------------------------------ obstacle
     def obstacle_ellipsoid(self, obs: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
-        """World centre and covariance form of the obstacle's MVEE, or ``None`` without an obstacle."""
-        if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) < 0.5:
+        """World centre ``(3,)`` and covariance form ``(3, 3)`` of the obstacle's MVEE, or ``None`` without an
+        obstacle. Fitted once per shape in the obstacle frame (the shared shape cache), then posed."""
+        if not has_obstacle(obs):
             return None
-        pose = np.asarray(obs["obstacle_pose"], np.float64)
-        rotation = quat_xyzw_to_matrix(pose[3:7])
-        local = (np.asarray(obs["obstacle_points"], np.float64) - pose[:3]) @ rotation
-        match = next((fit for fit in self._fits if fit[0].shape == local.shape
-                      and np.abs(fit[0] - local).max() < SHAPE_TOLERANCE), None)  # float32 poses jitter ~1e-6 m
-        if match is None:
-            fit = min_volume_ellipsoid(local)
-            match = (local, fit.centre, np.linalg.inv(fit.shape))
-            self._fits = [match, *self._fits[:7]]
-        _, centre, q_local = match
-        return rotation @ centre + pose[:3], rotation @ q_local @ rotation.T
+        position, rotation = obstacle_frame(obs)
+        centre, q_local = obstacle_shape(obs).product("mvee", _local_ellipsoid)
+        return rotation @ centre + position, rotation @ q_local @ rotation.T
 
     # ------------------------------------------------------------------ filtering
     def constraint(self, action: np.ndarray, obs: Mapping[str, np.ndarray], obstacle
                    ) -> tuple[float, np.ndarray, float]:
         """``(h, g, b)``: barrier now, and the linear constraint ``g . a[:3] >= b`` on the position part."""
-        rotation = quat_xyzw_to_matrix(obs["eef_quat"])
+        rotation = quat_xyzw_to_mat(obs["eef_quat"])
         eef = np.asarray(obs["eef_pos"], np.float64)
         h, _ = barrier(*self.end_effector.placed(eef, rotation), *obstacle)
-        turned = axis_angle_matrix(self.rotation_scale * np.asarray(action[3:6], np.float64)) @ rotation
+        _, turned = action_to_goal(eef, rotation, action)
         h_turned, grad = barrier(*self.end_effector.placed(eef, turned), *obstacle)
-        # h_r + g . (scale a) >= (1 - alpha dt) h   <=>   (scale g) . a >= (1 - alpha dt) h - h_r
-        return h, self.position_scale * grad, (1.0 - self.alpha * self.dt) * h - h_turned
+        # h_r + g . (POS_SCALE a) >= (1 - alpha dt) h   <=>   (POS_SCALE g) . a >= (1 - alpha dt) h - h_r
+        return h, POS_SCALE * grad, (1.0 - self.alpha * self.dt) * h - h_turned
 
     def __call__(self, action: np.ndarray, obs: Mapping[str, np.ndarray]) -> tuple[np.ndarray, FilterStep]:
         """The filtered action (the same object when it is already safe) and what was done."""

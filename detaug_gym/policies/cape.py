@@ -21,7 +21,7 @@ and only the actions are executed, so the cost is evaluated twice (``guide="both
 - ``states``: spheres placed by FK of the plan's joint states; its gradient moves the states, which
   reaches the actions only through later network evaluations (none after the last Euler step);
 - ``actions``: the same spheres carried along the end-effector path the plan's actions command,
-  ``p_{t+1} = p_t + gain * 0.05 * a_t[:3]`` (``action_gain`` 0.25: the fraction of the commanded 5 cm a
+  ``p_{t+1} = p_t + gain * POS_SCALE * a_t[:3]`` (``action_gain`` 0.25: the fraction of the commanded 5 cm a
   step that the OSC controller achieves at steady state, measured on the Spatial env), with the hand's
   orientation from FK; its gradient moves the executed actions away from the obstacle.
 
@@ -36,14 +36,14 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from detaug_gym.actions import POS_SCALE
 from detaug_gym.geometry.costs import DEFAULT_MARGIN, sphere_cost
+from detaug_gym.geometry.obstacle_view import has_obstacle
 from detaug_gym.geometry.robot_points import EEF_SPHERE_RADIUS, RobotGeometry, RobotSpheres
-from detaug_gym.geometry.sdf import ObstacleSDF, obstacle_sdf, quat_xyzw_to_matrix
+from detaug_gym.geometry.sdf import ObstacleSDF, obstacle_sdf
 from detaug_gym.models.flow import Guidance
 from detaug_gym.models.policy import FlowPolicy, load_checkpoint, shift_plan, zoo_dir
 from detaug_gym.policies.options import CapeOptions
-
-POSITION_SCALE = 0.05  # m per action unit (OSC_POSE)
 
 
 @dataclass(frozen=True)
@@ -105,7 +105,6 @@ class CapePolicy(FlowPolicy):
         self.track_cost = opts.track_cost
         self.diagnostics: list[CapeStep] = []
         self._previous: torch.Tensor | None = None
-        self._shape: tuple[np.ndarray, ObstacleSDF] | None = None  # last obstacle (local points, SDF)
 
     @property
     def prefix_steps(self) -> int:
@@ -142,30 +141,16 @@ class CapePolicy(FlowPolicy):
     # ------------------------------------------------------------------ cost
     def cost_function(self, obs: Mapping[str, np.ndarray]):
         """``cost(plans (K, H, D) physical, t) -> (K,)`` for this observation, or ``None`` without an obstacle."""
-        if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) < 0.5:
+        if not has_obstacle(obs):
             return None
         observation = dict(obs)
-        sdf, robot = self._obstacle_sdf(observation), self.robot.aligned_to(observation)
+        sdf, robot = obstacle_sdf(observation), self.robot.aligned_to(observation)
         fingers = torch.as_tensor(np.asarray(obs["gripper_qpos"], np.float64))
 
         def cost(plans: torch.Tensor, t: float) -> torch.Tensor:
             return self.collision_cost(plans, robot, sdf, fingers)
 
         return cost
-
-    def _obstacle_sdf(self, obs: dict[str, np.ndarray]) -> ObstacleSDF:
-        """The shared SDF, re-posed without re-baking while the obstacle keeps its shape (to 1 mm; pushes
-        move it, float32 poses jitter its local points by ~1e-6 m, which can change the grid cache key)."""
-        pose = np.asarray(obs["obstacle_pose"], np.float64)
-        rotation = quat_xyzw_to_matrix(pose[3:7])
-        local = (np.asarray(obs["obstacle_points"], np.float64) - pose[:3]) @ rotation
-        if self._shape is not None and self._shape[0].shape == local.shape \
-                and np.abs(self._shape[0] - local).max() < 1e-3:
-            sdf = self._shape[1]
-            return ObstacleSDF(sdf.grid, rotation, pose[:3], sdf.mesh)
-        sdf = obstacle_sdf(obs)
-        self._shape = (local, sdf)
-        return sdf
 
     def collision_cost(self, plans: torch.Tensor, robot: RobotGeometry, sdf: ObstacleSDF,
                        fingers: torch.Tensor | None = None) -> torch.Tensor:
@@ -178,7 +163,7 @@ class CapePolicy(FlowPolicy):
         if self.guide in ("both", "states"):
             total = total + sphere_cost(centres, radii, sdf, self.margin)
         if self.guide in ("both", "actions"):
-            moves = self.action_gain * POSITION_SCALE * plans[..., self.layout.action_slice][..., :-1, :3]
+            moves = self.action_gain * POS_SCALE * plans[..., self.layout.action_slice][..., :-1, :3]
             start = fk.eef_position[..., :1, :].detach()  # the current grip site (inpainted state)
             path = torch.cat([start, start + torch.cumsum(moves, dim=-2)], dim=-2)  # (K, H, 3)
             hand = (centres - fk.eef_position[..., None, :]).detach()  # sphere layout from the FK orientation

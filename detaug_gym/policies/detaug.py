@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from detaug_gym.geometry.obstacle_view import has_obstacle
 from detaug_gym.models.flow import Guidance
 from detaug_gym.models.policy import FlowPolicy, load_checkpoint, zoo_dir
 from detaug_gym.policies.options import DetAugOptions
@@ -128,7 +129,7 @@ class DetAugPolicy(FlowPolicy):
 
     def score(self, plans: torch.Tensor, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """(K,) collision cost of plans (K, H, D) against the observed obstacle (0 without one)."""
-        if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) == 0.0:
+        if not has_obstacle(obs):
             return np.zeros(len(plans))
         with torch.no_grad():
             return self._plan_cost(plans.double(), dict(obs)).numpy()
@@ -147,7 +148,7 @@ class DetAugPolicy(FlowPolicy):
         return cost
 
     def _guidance(self, obs: Mapping[str, np.ndarray]) -> Guidance | None:
-        if float(np.asarray(obs.get("obstacle_mask", [0.0])).ravel()[0]) == 0.0:
+        if not has_obstacle(obs):
             return None
         observation = dict(obs)
 

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from detaug_gym.actions import ACTION_DIM, GRIPPER_CLOSE, GRIPPER_OPEN
 from detaug_gym.policies.options import RandomOptions
-
-ACTION_DIM = 7
 
 
 class RandomPolicy:
@@ -30,5 +29,5 @@ class RandomPolicy:
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         action = np.empty(ACTION_DIM, dtype=np.float32)
         action[:6] = self._rng.uniform(-self.scale, self.scale, 6)
-        action[6] = 1.0 if self._rng.random() < 0.5 else -1.0
+        action[6] = GRIPPER_CLOSE if self._rng.random() < 0.5 else GRIPPER_OPEN
         return action

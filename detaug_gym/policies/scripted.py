@@ -35,16 +35,9 @@ from functools import partial
 
 import numpy as np
 
+from detaug_gym.actions import ACTION_DIM, GRIPPER_CLOSE, GRIPPER_OPEN, goal_to_action
 from detaug_gym.policies.options import ScriptedOptions
-from detaug_gym.policies.scripted_math import (
-    bezier,
-    mat_to_rotvec,
-    min_jerk,
-    quat_to_mat,
-    rot_x,
-    rot_z,
-    wrap_yaw,
-)
+from detaug_gym.policies.scripted_math import bezier, min_jerk, rot_x, rot_z, wrap_yaw
 from detaug_gym.policies.scripted_tasks import (
     DRAWER_HANDLE,
     DRAWER_OPEN_DIR,
@@ -58,10 +51,8 @@ from detaug_gym.policies.scripted_tasks import (
     identify_task,
     recipe_for,
 )
+from detaug_gym.rotations import quat_xyzw_to_mat, rotation_error
 
-POS_SCALE = 0.05  # m per unit action (OSC_POSE output_max)
-ROT_SCALE = 0.5  # rad per unit action
-OPEN, CLOSE = -1.0, 1.0
 # End of the descent to a grasp: a hand this far above (or beside) the grasp point did not get there (good grasps
 # close within ~2 cm: the servo stops short of pads resting on the wall).
 BLOCKED_DZ, BLOCKED_DXY = 0.028, 0.035
@@ -156,8 +147,8 @@ class ScriptedExpert:
         self._obs: dict[str, np.ndarray] = {}
         self._yaw = 0.0
         self._pitch = 0.0
-        self._grip = OPEN
-        self._last = np.zeros(7, dtype=np.float32)
+        self._grip = GRIPPER_OPEN
+        self._last = np.zeros(ACTION_DIM, dtype=np.float32)
         self._home = np.zeros(3)
         self._start_poses = np.zeros((0, 7))
         self.trace: list[tuple[str, int, bool]] = []  # (primitive, steps, reached) for debugging
@@ -191,7 +182,7 @@ class ScriptedExpert:
             # leaving a container: arc over its rim (the servo lags the curve, hence the margin)
             transit_z = self._eef()[2] + 0.06 if TARGETS[step.target].rim is not None else None
         while True:  # hold still, gripper open, until the env ends the episode
-            yield self._servo(self._eef(), OPEN)
+            yield self._servo(self._eef(), GRIPPER_OPEN)
 
     def _pick(self, step: Step, lift: float | None = None, transit_z: float | None = None,
               ) -> Generator[np.ndarray, None, np.ndarray]:
@@ -208,19 +199,20 @@ class ScriptedExpert:
             pre = grasp + [0, 0, style.approach]
             # with a transit height: arc over, staying high until above the object
             over = None if transit_z is None else np.r_[pre[:2], max(transit_z, self._eef()[2])]
-            yield from self._move(pre, yaw, OPEN, style.speed, tol=0.01, via=over is None, pitch=pitch, mid=over)
+            yield from self._move(pre, yaw, GRIPPER_OPEN, style.speed, tol=0.01, via=over is None, pitch=pitch,
+                                  mid=over)
             grasp, yaw = self._grasp_pose(step, attempt)
             # a finger landing on the object gets pushed in: stop pressing at once (pressing on, the wedged
             # finger flings a light object away when it comes free)
             squeezed = partial(lambda width: self._width() < width - SQUEEZED, self._width())
-            yield from self._move(grasp, yaw, OPEN, 0.6 * style.speed, tol=0.004, check=squeezed)
+            yield from self._move(grasp, yaw, GRIPPER_OPEN, 0.6 * style.speed, tol=0.004, check=squeezed)
             if attempt < 3 and self._blocked(step, attempt):
                 # a finger came down on the rim, or the touch knocked the object away: closing would squeeze
                 # it out of reach, so back off and come again (the next attempt turns the rim point)
                 self.trace.append(("regrasp", 0, False))
-                yield from self._move(self._eef() + [0, 0, 0.04], yaw, OPEN, style.speed, tol=0.02)
+                yield from self._move(self._eef() + [0, 0, 0.04], yaw, GRIPPER_OPEN, style.speed, tol=0.02)
                 continue
-            yield from self._gripper(CLOSE)
+            yield from self._gripper(GRIPPER_CLOSE)
             offset = self._eef() - self._pose(step.obj_slot)[:3]
             if lift is None:
                 lift_z = max(grasp[2] + style.lift, self._above_place(step, offset)[2])
@@ -228,15 +220,15 @@ class ScriptedExpert:
                 lift_z = grasp[2] + lift
             slipped = partial(self._slipped, step.obj_slot, offset[2])
             closed_z = self._eef()[2]
-            yield from self._move(np.r_[grasp[:2], lift_z], yaw, CLOSE, 0.8 * style.speed,
+            yield from self._move(np.r_[grasp[:2], lift_z], yaw, GRIPPER_CLOSE, 0.8 * style.speed,
                                   tol=0.02 if lift is None else 0.006, check=slipped)
             # judged against how far the hand actually rose: a short hop ends up to ``tol`` below its goal
             hand_rise = self._eef()[2] - closed_z
             if (hand_rise > 0.01 and self._pose(step.obj_slot)[2] - start_z > 0.6 * min(hand_rise, 0.05)
                     and not slipped()):
                 return offset
-            yield from self._gripper(OPEN)
-            yield from self._move(self._eef() + [0, 0, 0.06], yaw, OPEN, style.speed, tol=0.02)
+            yield from self._gripper(GRIPPER_OPEN)
+            yield from self._move(self._eef() + [0, 0, 0.06], yaw, GRIPPER_OPEN, style.speed, tol=0.02)
         return self._eef() - self._pose(step.obj_slot)[:3]
 
     def _reach_pitch(self, grasp: np.ndarray, yaw: float) -> float:
@@ -262,20 +254,20 @@ class ScriptedExpert:
         style = self.style
         above = self._above_place(step, offset)
         slipped = partial(self._slipped, step.obj_slot, offset[2])
-        yield from self._move(above, self._yaw, CLOSE, style.speed, tol=0.012, via=True, check=slipped)
+        yield from self._move(above, self._yaw, GRIPPER_CLOSE, style.speed, tol=0.012, via=True, check=slipped)
         if slipped():
             return False
         release = self._place_eef(step, offset)
-        yield from self._move(release, self._yaw, CLOSE, 0.5 * style.speed, tol=0.005)
+        yield from self._move(release, self._yaw, GRIPPER_CLOSE, 0.5 * style.speed, tol=0.005)
         if OBJECTS[step.obj].style == "rim":
             yield from self._let_go(step.obj_slot)
         else:
-            yield from self._gripper(OPEN)
+            yield from self._gripper(GRIPPER_OPEN)
         retreat = self._eef() + [0, 0, 0.08]
         place = TARGETS[step.target]
         if place.rim is not None:  # fingertips well above the rim before moving sideways
             retreat[2] = max(retreat[2], self._pose(step.target_slot)[2] + place.rim + 0.05)
-        yield from self._move(retreat, self._yaw, OPEN, 0.8 * style.speed, tol=0.02)
+        yield from self._move(retreat, self._yaw, GRIPPER_OPEN, 0.8 * style.speed, tol=0.02)
         return True
 
     def _stage_for_drawer(self, step: Step) -> Actions:
@@ -290,10 +282,10 @@ class ScriptedExpert:
         offset = yield from self._pick(hop, lift=0.025)
         stage = self._start_poses[step.target_slot][:2] + DRAWER_STAGE
         down = np.r_[stage, start_z + 0.004] + offset
-        yield from self._move(down + [0, 0, 0.02], self._yaw, CLOSE, 0.8 * style.speed, tol=0.01)
-        yield from self._move(down, self._yaw, CLOSE, 0.5 * style.speed, tol=0.006)
+        yield from self._move(down + [0, 0, 0.02], self._yaw, GRIPPER_CLOSE, 0.8 * style.speed, tol=0.01)
+        yield from self._move(down, self._yaw, GRIPPER_CLOSE, 0.5 * style.speed, tol=0.006)
         yield from self._release()
-        yield from self._move(self._eef() + [0, 0, 0.05], self._yaw, OPEN, style.speed, tol=0.02)
+        yield from self._move(self._eef() + [0, 0, 0.05], self._yaw, GRIPPER_OPEN, style.speed, tol=0.02)
 
     def _let_go(self, slot: int) -> Actions:
         """Open the fingers on a set-down rim-held object, moving the hand towards the cup's axis as they open.
@@ -305,14 +297,14 @@ class ScriptedExpert:
         """
         inward = self._pose(slot)[:2] - self._eef()[:2]
         inward /= max(float(np.linalg.norm(inward)), 1e-9)
-        yield from self._gripper(OPEN, drift=inward, label="let-go")
+        yield from self._gripper(GRIPPER_OPEN, drift=inward, label="let-go")
 
     def _release(self, gap: float = 0.03) -> Actions:
         """Open the fingers until they have moved ``gap`` apart (or are fully open)."""
         hold, start = self._eef(), self._width()
         steps = 0
         while steps < 16:
-            yield self._servo(hold, OPEN)
+            yield self._servo(hold, GRIPPER_OPEN)
             steps += 1
             if self._width() - start > gap or self._width() > 0.075:
                 break
@@ -322,27 +314,27 @@ class ScriptedExpert:
         """Grasp the top drawer's handle with the hand pitched towards the cabinet and pull it open."""
         style = self.style
         site = self._pose(site_slot)
-        rot = quat_to_mat(site[3:])
+        rot = quat_xyzw_to_mat(site[3:])
         handle = site[:3] + rot @ DRAWER_HANDLE
         pull = rot @ DRAWER_OPEN_DIR
-        yield from self._move(handle + 0.07 * pull + [0, 0, 0.02], 0.0, OPEN, style.speed, tol=0.015,
+        yield from self._move(handle + 0.07 * pull + [0, 0, 0.02], 0.0, GRIPPER_OPEN, style.speed, tol=0.015,
                               pitch=np.pi / 2)
-        yield from self._move(handle - 0.005 * pull, 0.0, OPEN, 0.5 * style.speed, tol=0.005, pitch=np.pi / 2)
-        yield from self._gripper(CLOSE)
-        yield from self._move(handle + DRAWER_TRAVEL * pull, 0.0, CLOSE, 0.7 * style.speed, tol=0.01,
+        yield from self._move(handle - 0.005 * pull, 0.0, GRIPPER_OPEN, 0.5 * style.speed, tol=0.005, pitch=np.pi / 2)
+        yield from self._gripper(GRIPPER_CLOSE)
+        yield from self._move(handle + DRAWER_TRAVEL * pull, 0.0, GRIPPER_CLOSE, 0.7 * style.speed, tol=0.01,
                               pitch=np.pi / 2)
         yield from self._release()
         # back out along the pull, then up to the transit height turning the hand down: the fingers must not
         # sweep over the drawer front (that pushes it shut again)
-        yield from self._move(self._eef() + 0.05 * pull, 0.0, OPEN, style.speed, tol=0.015)
-        yield from self._move(np.r_[self._eef()[:2], TRANSIT_Z], 0.0, OPEN, style.speed, tol=0.03, pitch=0.0)
+        yield from self._move(self._eef() + 0.05 * pull, 0.0, GRIPPER_OPEN, style.speed, tol=0.015)
+        yield from self._move(np.r_[self._eef()[:2], TRANSIT_Z], 0.0, GRIPPER_OPEN, style.speed, tol=0.03, pitch=0.0)
 
     # ------------------------------------------------------------------ geometry
     def _grasp_pose(self, step: Step, attempt: int = 0) -> tuple[np.ndarray, float]:
         """Grip-site position and hand yaw for grasping the object of ``step``."""
         spec = OBJECTS[step.obj]
         pose = self._pose(step.obj_slot)
-        rot = quat_to_mat(pose[3:])
+        rot = quat_xyzw_to_mat(pose[3:])
         dz = self.style.grasp_dz + (0.006 * attempt if attempt else 0.0)
         if spec.style == "rim":
             # Wall points on the rim circle at grasp height, in the cup's own (possibly tilted) frame; take
@@ -398,7 +390,7 @@ class ScriptedExpert:
         """Grip-site position that releases the held object at the place point of ``step``."""
         spec, place = OBJECTS[step.obj], TARGETS[step.target]
         target = self._pose(step.target_slot)
-        rot = quat_to_mat(target[3:])
+        rot = quat_xyzw_to_mat(target[3:])
         point = target[:3] + rot @ np.array([*place.offset, 0.0])
         point[:2] += np.asarray(place.world_offset) + np.asarray(step.place_shift) + self.style.place_jitter
         point[2] = target[2] + place.surface + place.clearance + spec.bottom
@@ -473,19 +465,14 @@ class ScriptedExpert:
         self.trace.append((label, t + 1, True))
 
     def _rotation_error(self) -> float:
-        current = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
-        return float(np.linalg.norm(mat_to_rotvec(self._hand_rotation() @ current.T)))
+        current = quat_xyzw_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
+        return float(np.linalg.norm(rotation_error(self._hand_rotation(), current)))
 
     def _servo(self, target: np.ndarray, grip: float) -> np.ndarray:
         """OSC_POSE delta that sets the controller's goal to ``target`` and the current yaw/pitch."""
         self._grip = grip
-        action = np.zeros(7, dtype=np.float32)
-        action[:3] = np.clip((target - self._eef()) / POS_SCALE, -1.0, 1.0)
-        current = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
-        rotvec = mat_to_rotvec(self._hand_rotation() @ current.T)
-        action[3:6] = np.clip(rotvec / ROT_SCALE, -1.0, 1.0)
-        action[6] = grip
-        return action
+        current = quat_xyzw_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
+        return goal_to_action(self._eef(), current, target, self._hand_rotation(), grip).astype(np.float32)
 
     # ------------------------------------------------------------------ observation access
     def _eef(self) -> np.ndarray:
@@ -504,5 +491,5 @@ class ScriptedExpert:
         return rot_z(self._yaw) @ rot_x(-self._pitch) @ R_DOWN
 
     def _current_yaw(self) -> float:
-        rot = quat_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64)) @ R_DOWN.T
+        rot = quat_xyzw_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64)) @ R_DOWN.T
         return float(np.arctan2(rot[1, 0], rot[0, 0]))

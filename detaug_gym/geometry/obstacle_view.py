@@ -1,0 +1,101 @@
+"""What an env observation says about the obstacle, read in one place.
+
+The env reports (``ObstacleManipulationEnv``): ``obstacle_mask`` (1,) 1 with an obstacle and 0 without
+(then every other obstacle entry is zero), ``obstacle_pose`` (7,) position + xyzw quaternion of the
+obstacle's frame, ``obstacle_points`` (N, 3) world-frame surface samples (N = 256) and ``obstacle_size``
+(3,) half-extents. The samples are fixed in the obstacle's frame and move with its pose, so the points in
+the obstacle frame (:func:`obstacle_local_points`) identify its *shape* across episodes and pushes.
+
+:data:`SHAPES` is the one cache of what is derived from a shape (the convex hull and SDF grids of
+:func:`~detaug_gym.geometry.obstacle_sdf`, AEGIS's ellipsoid fit): a shape is looked up by its local
+points to within :data:`SHAPE_TOLERANCE` (float32 poses jitter them by ~1e-6 m, far below it), so each is
+baked once per process however the obstacle is posed. This module needs only numpy; what is cached is
+built by the callers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Hashable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+import numpy as np
+
+from detaug_gym.rotations import quat_xyzw_to_mat
+
+MASK_THRESHOLD = 0.5  # obstacle_mask >= this: there is an obstacle (the env writes exactly 0 or 1)
+SHAPE_TOLERANCE = 1e-3  # m: local points this close (max over points and axes) are the same shape
+SHAPE_CACHE_SIZE = 32  # shapes kept, least recently used dropped first
+
+T = TypeVar("T")
+
+
+def has_obstacle(obs: Mapping[str, np.ndarray]) -> bool:
+    """Whether the observation holds an obstacle (``obstacle_mask`` >= 0.5; no mask: no obstacle)."""
+    mask = obs.get("obstacle_mask")
+    return mask is not None and float(np.asarray(mask).reshape(-1)[0]) >= MASK_THRESHOLD
+
+
+def obstacle_frame(obs: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The obstacle frame in the world: position ``(3,)`` and rotation ``(3, 3)`` (float64), from ``obstacle_pose``."""
+    pose = np.asarray(obs["obstacle_pose"], np.float64)
+    return pose[:3], quat_xyzw_to_mat(pose[3:7])
+
+
+def obstacle_local_points(obs: Mapping[str, np.ndarray]) -> np.ndarray:
+    """The observation's ``obstacle_points`` in the obstacle frame, ``(N, 3)`` float64."""
+    position, rotation = obstacle_frame(obs)
+    return (np.asarray(obs["obstacle_points"], np.float64) - position) @ rotation
+
+
+@dataclass
+class CachedShape:
+    """One obstacle shape and what has been derived from it.
+
+    Attributes:
+        points: ``(N, 3)`` the shape's points in the obstacle frame, as first seen.
+        products: derived objects by key (``"hull"``, ``("sdf", spacing, padding)``, ``"mvee"``, ...).
+    """
+
+    points: np.ndarray
+    products: dict[Hashable, Any] = field(default_factory=dict)
+
+    def matches(self, points: np.ndarray) -> bool:
+        """``points`` ``(N, 3)`` are this shape to within :data:`SHAPE_TOLERANCE`."""
+        return self.points.shape == points.shape and float(np.abs(self.points - points).max()) < SHAPE_TOLERANCE
+
+    def product(self, key: Hashable, build: Callable[[np.ndarray], T]) -> T:
+        """The product ``key``, made by ``build(points)`` the first time it is asked for."""
+        if key not in self.products:
+            self.products[key] = build(self.points)
+        return self.products[key]
+
+
+class ShapeCache:
+    """Obstacle shapes by their local points, least recently used dropped beyond ``capacity``."""
+
+    def __init__(self, capacity: int = SHAPE_CACHE_SIZE) -> None:
+        self.capacity = int(capacity)
+        self._shapes: list[CachedShape] = []  # most recently used first
+
+    def __len__(self) -> int:
+        return len(self._shapes)
+
+    def lookup(self, points: np.ndarray) -> CachedShape:
+        """The cached shape matching local ``points`` ``(N, 3)``, added when there is none."""
+        points = np.asarray(points, np.float64)
+        index = next((i for i, shape in enumerate(self._shapes) if shape.matches(points)), None)
+        shape = CachedShape(points.copy()) if index is None else self._shapes.pop(index)
+        self._shapes = [shape, *self._shapes[:self.capacity - 1]]
+        return shape
+
+    def clear(self) -> None:
+        self._shapes = []
+
+
+SHAPES = ShapeCache()
+
+
+def obstacle_shape(obs: Mapping[str, np.ndarray], cache: ShapeCache | None = None) -> CachedShape:
+    """The cached shape of the observation's obstacle (default cache :data:`SHAPES`); needs an obstacle."""
+    return (SHAPES if cache is None else cache).lookup(obstacle_local_points(obs))
