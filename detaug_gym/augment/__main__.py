@@ -20,6 +20,7 @@ from pathlib import Path
 
 from detaug_gym.augment import engine
 from detaug_gym.augment.runner import MODES, RunArgs, load_mode, run
+from detaug_gym.data.dataset import DatasetError
 
 
 def build_parser(mode: str) -> argparse.ArgumentParser:
@@ -59,7 +60,10 @@ def main(argv: list[str] | None = None) -> None:
     args = RunArgs(inp=Path(ns.inp), out=Path(ns.out), copies=ns.copies, mode=mode_name,
                    config=engine.make_config(load_mode(mode_name), ns), seed=ns.seed, limit=ns.limit)
     start = time.perf_counter()
-    stats = run(args, progress=not ns.no_progress)
+    try:
+        stats = run(args, progress=not ns.no_progress)
+    except DatasetError as exc:
+        raise SystemExit(f"error: {exc}") from None
     print(stats.report())
     print(f"wrote {args.out} in {time.perf_counter() - start:.0f} s")
     if ns.plot:

@@ -15,12 +15,15 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from detaug_gym.data.dataset import DatasetError
 
 MODES = {"detaug": "detaug_gym.augment.detaug:MODE", "demogen": "detaug_gym.augment.demogen:MODE"}
 
@@ -85,8 +88,27 @@ def read_progress(out: Path, suite: str) -> RunStats:
     """The sidecar's statistics, or fresh ones when the output file does not exist yet."""
     side = progress_path(out)
     if out.exists() and side.exists():
-        return RunStats.from_json(json.loads(side.read_text()))
+        try:
+            return RunStats.from_json(json.loads(side.read_text()))
+        except (json.JSONDecodeError, TypeError) as exc:
+            raise DatasetError(f"{side}: unreadable progress file ({exc}); delete it to redo every source") from exc
     return RunStats(suite=suite)
+
+
+def check_files(inp: Path, out: Path) -> None:
+    """``DatasetError`` when ``out`` is ``inp`` (the run would modify its own source) or an existing ``out``
+    is not a readable HDF5 file (it could not be resumed)."""
+    if inp.resolve() == out.resolve() or (out.exists() and os.path.samefile(inp, out)):
+        raise DatasetError(f"{out}: is the input file too; augmenting would modify its source, choose another --out")
+    if out.exists():
+        import h5py
+
+        try:
+            with h5py.File(out, "r"):
+                pass
+        except OSError as exc:
+            raise DatasetError(f"{out}: cannot resume, not a readable HDF5 file ({exc}); "
+                               "delete it or choose another --out") from exc
 
 
 def write_progress(out: Path, stats: RunStats) -> None:
@@ -164,8 +186,12 @@ def run(args: RunArgs, progress: bool = True) -> RunStats:
     from detaug_gym.envs.suites import suite_of_env
 
     mode = load_mode(args.mode)
+    check_files(args.inp, args.out)
     dataset = load(args.inp)
     sources = select_sources(dataset.demos, args.limit)
+    if not sources:
+        raise DatasetError(f"{args.inp}: no demos to augment ({len(dataset.demos)} demos, none an original "
+                           "collected without action noise)")
     env_args = dict(dataset.attrs.get("env_args") or {})
     env_id = env_args.get("env_name") or sources[0].attrs["env_id"]
     suite = suite_of_env(env_id)[0]
