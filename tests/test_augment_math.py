@@ -18,7 +18,8 @@ from detaug_gym.augment.arcs import (
     min_jerk,
     smooth_trapezoid,
 )
-from detaug_gym.augment.detaug import label_size, make_label, suite_of
+from detaug_gym.augment.detaug import MODE as DETAUG
+from detaug_gym.augment.detaug import make_label
 from detaug_gym.augment.plan import ArcSample, Timing, build_plan
 from detaug_gym.augment.segment import SegmentConfig, Transit, closed_runs, segment_gripper
 from detaug_gym.rotations import slerp
@@ -182,8 +183,9 @@ def test_unbent_plan_is_the_source():
     ("SafeLibero-Long-L2-v0", 8), ("Newton-PickPlace-v0", 4),
 ])
 def test_label_size_is_fixed_per_suite(env_id, size):
-    assert label_size(env_id) == size
-    assert suite_of(env_id) in ("spatial", "object", "goal", "long", "newton")
+    from detaug_gym.envs.suites import suite_of_env
+
+    assert DETAUG.label_size(suite_of_env(env_id)[0]) == size
 
 
 def test_label_slots_follow_grasp_and_transit_kind():

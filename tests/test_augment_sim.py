@@ -14,16 +14,20 @@ import detaug_gym  # noqa: F401
 from detaug_gym.augment.__main__ import main as augment_main
 from detaug_gym.augment.arcs import arc_points, min_jerk
 from detaug_gym.augment.context import SourceContext, reset_to_demo
-from detaug_gym.augment.detaug import DetAugConfig, augment_source
+from detaug_gym.augment.detaug import MODE as DETAUG
+from detaug_gym.augment.detaug import DetAugConfig
+from detaug_gym.augment.engine import augment_source
 from detaug_gym.augment.plan import build_plan
 from detaug_gym.augment.replay import length_limit, run_plan, tail_steps
 from detaug_gym.collect import record_episode
 from detaug_gym.data import DatasetWriter, load
+from detaug_gym.envs.suites import suite_of_env
 from detaug_gym.policies import make_policy
 from detaug_gym.rollout import step_limit
 from detaug_gym.rotations import quat_xyzw_to_mat, rotation_error, slerp
 
 ENV_ID = "SafeLibero-Spatial-Free-v0"
+SUITE = suite_of_env(ENV_ID)[0]
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +48,7 @@ def demo(env):
 @pytest.fixture(scope="module")
 def augmented(env, demo):
     config = DetAugConfig(tries=12)
-    result = augment_source(env, demo, 2, np.random.default_rng(3), config, label_len=4)
+    result = augment_source(env, demo, 2, np.random.default_rng(3), DETAUG, SUITE, config)
     return result, config
 
 
@@ -119,7 +123,7 @@ def test_copies_whose_grasp_moved_on_the_object_are_rejected(env, demo, augmente
         local = _held_offsets(ctx, aug.states[carry["start"]:carry["start"] + 1])[0]
         assert np.linalg.norm(local - ctx.held[1].offset_pos) <= config.replay.grasp_tolerance
     strict = replace(config, tries=3, replay=replace(config.replay, grasp_tolerance=1e-6))
-    rejected = augment_source(env, demo, 1, np.random.default_rng(3), strict, label_len=4)
+    rejected = augment_source(env, demo, 1, np.random.default_rng(3), DETAUG, SUITE, strict)
     assert not rejected.demos and rejected.reasons["grasp_moved"] > 0, dict(rejected.reasons)
 
 

@@ -121,3 +121,14 @@ def test_demogen_mode_writes_demos_with_obstacle_clouds(demogen_run):
     assert not hull.contains(demo.obs["eef_pos"]).any()
     assert cloud[:, 2].min() == pytest.approx(demo.attrs["obstacle_pose"][2], abs=1e-3)
     assert len(demo.attrs["transits"]) >= 1
+
+
+def test_a_suite_without_safelibero_meshes_borrows_spatials():
+    from detaug_gym.augment.obstacle_shapes import N_POINTS, SAFELIBERO_TYPES, safelibero_shapes
+    from detaug_gym.envs.suites import get_suite
+
+    newton = get_suite("newton")
+    assert newton.shape_source_level is None
+    shapes = safelibero_shapes(newton)
+    assert shapes is safelibero_shapes(get_suite("spatial")) and tuple(shapes) == SAFELIBERO_TYPES
+    assert all(s.points.shape == (N_POINTS, 3) and s.points[:, 2].min() >= -1e-9 for s in shapes.values())

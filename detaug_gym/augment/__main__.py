@@ -7,7 +7,8 @@
 
 Writes the originals (label = zeros) and the accepted augmented demos (label, source_demo, phi/theta per
 transit, augmentation parameters) in the input's HDF5 layout; re-running the same command resumes.
-``--mode`` picks the augmentation (``detaug``, the default); its options are listed under its name.
+``--mode`` picks the augmentation (``detaug``, the default); its options are listed under its name, the
+options every mode shares under "every mode".
 """
 
 from __future__ import annotations
@@ -17,7 +18,9 @@ import sys
 import time
 from pathlib import Path
 
+from detaug_gym.augment import engine
 from detaug_gym.augment.runner import MODES, RunArgs, load_mode, run
+from detaug_gym.data.dataset import DatasetError
 
 
 def build_parser(mode: str) -> argparse.ArgumentParser:
@@ -34,7 +37,8 @@ def build_parser(mode: str) -> argparse.ArgumentParser:
     parser.add_argument("--plot", default=None, metavar="FILE.png",
                         help="also draw original and augmented eef paths of a few demos (paper Fig. 4)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    load_mode(mode).add_arguments(parser)
+    engine.add_arguments(parser)
+    load_mode(mode).add_arguments(parser.add_argument_group(mode))
     return parser
 
 
@@ -53,11 +57,13 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit("error: --copies must be >= 0")
     if not Path(ns.inp).exists():
         raise SystemExit(f"error: --in {ns.inp}: no such file")
-    mode = load_mode(mode_name)
     args = RunArgs(inp=Path(ns.inp), out=Path(ns.out), copies=ns.copies, mode=mode_name,
-                   config=mode.make_config(ns), seed=ns.seed, limit=ns.limit)
+                   config=engine.make_config(load_mode(mode_name), ns), seed=ns.seed, limit=ns.limit)
     start = time.perf_counter()
-    stats = run(args, progress=not ns.no_progress)
+    try:
+        stats = run(args, progress=not ns.no_progress)
+    except DatasetError as exc:
+        raise SystemExit(f"error: {exc}") from None
     print(stats.report())
     print(f"wrote {args.out} in {time.perf_counter() - start:.0f} s")
     if ns.plot:

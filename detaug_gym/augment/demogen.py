@@ -1,10 +1,12 @@
 """DemoGen mode: train-time obstacles on the free-space demos, with planned detours around them.
 
-Per source demo and per requested copy, up to ``tries`` samples are drawn:
+A sample (:meth:`DemoGenMode.propose`; the engine, :mod:`~detaug_gym.augment.engine`, draws up to ``tries``
+per requested copy) is:
 
-1. an obstacle shape: one of SafeLIBERO's six types (their collision meshes, from a SafeLIBERO L1 scene of
-   the same suite, cached on disk) or a random box / cylinder (half-width 0.015-0.06 m, half-height
-   0.02-0.11 m), with a random yaw;
+1. an obstacle shape: one of SafeLIBERO's six types (their collision meshes, from the scene of the suite's
+   ``shape_source_level``, L1; Spatial's for a suite without one; cached on disk;
+   :mod:`~detaug_gym.augment.obstacle_shapes`) or a random box / cylinder (half-width 0.015-0.06 m,
+   half-height 0.02-0.11 m), with a random yaw;
 2. a placement on the support under a random point of a random transit's path (20-80% of its length,
    up to 2 cm sideways), kept only where the obstacle's footprint clears every scene object by 1 cm, the
    robot proxy (hand + wrist + held object, :mod:`~detaug_gym.augment.planner`) moving along the
@@ -13,10 +15,11 @@ Per source demo and per requested copy, up to ``tries`` samples are drawn:
 3. for every transit the obstacle blocks, a detour from RRT-Connect in grip-site position space, then
    shortcutting, corner cutting and retiming (the source's mean speed, capped at ``max_speed``, smooth
    trapezoid progress; orientation slerped with the same progress), re-checked frame by frame;
-4. the DetAug pipeline: IK, joint limits / speed / acceleration and MuJoCo contacts with the scene
+4. the engine's checks: IK, joint limits / speed / acceleration and MuJoCo contacts with the scene
    (``SourceContext.check_span``), then the closed-loop replay in the (obstacle-free) env, kept if it
-   succeeds, tracks the detour and the held object does not slip; finally the recorded robot (surface
-   points by FK) and held object must stay out of the obstacle's convex hull (``replay_collision``).
+   succeeds, tracks the detour and the held object does not slip; finally (:meth:`DemoGenMode.accept`) the
+   recorded robot (surface points by FK) and held object must stay out of the obstacle's convex hull
+   (``replay_collision``).
 
 The obstacle exists only in the data: the recorded demo carries its 256 world-frame surface points
 (``obstacle_points``, the env's convention) and the originals none (an empty cloud: mask 0 in training).
@@ -24,19 +27,17 @@ The obstacle exists only in the data: the recorded demo carries its 256 world-fr
 
 from __future__ import annotations
 
-import os
-import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import mujoco
 import numpy as np
 import trimesh
 
 from detaug_gym.augment.arcs import arc_steps, peak_factor, smooth_trapezoid
-from detaug_gym.augment.context import SourceContext, reset_to_demo
-from detaug_gym.augment.detaug import SourceResult, StageConfigs, suite_of
-from detaug_gym.augment.plan import ArcSample, Plan, Replacement, Timing, splice_transits
+from detaug_gym.augment.context import SourceContext
+from detaug_gym.augment.engine import Mode, Proposal, StageConfigs
+from detaug_gym.augment.obstacle_shapes import ObstacleShape, sample_shape
+from detaug_gym.augment.plan import ArcSample, Plan, Replacement, splice_transits
 from detaug_gym.augment.planner import (
     PlannerConfig,
     ProxyWorld,
@@ -50,21 +51,11 @@ from detaug_gym.augment.planner import (
     smooth,
     sphere_part,
 )
-from detaug_gym.augment.replay import ReplayConfig, length_limit, run_plan, tail_steps
 from detaug_gym.augment.segment import Transit
-from detaug_gym.envs.suites import get_suite
+from detaug_gym.envs.suites import SuiteSpec
 from detaug_gym.rotations import quat_xyzw_to_mat, slerp
 
-__all__ = ["DemoGenConfig", "ObstacleShape", "augment_source", "label_size", "suite_of"]
-
-SAFELIBERO_TYPES = ("moka_pot", "white_storage_box", "milk", "wine_bottle", "red_coffee_mug", "yellow_book")
-PRIMITIVES = ("box", "cylinder")
-N_POINTS = 256
-
-
-def label_size(env_id: str) -> int:
-    """DemoGen demos carry no label (the obstacle cloud is their conditioning)."""
-    return 0
+__all__ = ["MODE", "DemoGenConfig", "DemoGenMode", "TrainObstacle"]
 
 
 @dataclass(frozen=True)
@@ -92,111 +83,6 @@ class DemoGenConfig(StageConfigs):
     placement_tries: int = 60
     replay_tolerance: float = 0.005
     planner: PlannerConfig = field(default_factory=PlannerConfig)
-
-
-# ---------------------------------------------------------------------------------------------- obstacles
-@dataclass(frozen=True)
-class ObstacleShape:
-    """An obstacle in its own frame: upright, footprint centred on the origin, lowest point at z = 0."""
-
-    kind: str
-    mesh: trimesh.Trimesh
-    points: np.ndarray  # (N_POINTS, 3) surface samples
-
-    def placed(self, xy: np.ndarray, yaw: float, support_z: float) -> tuple[trimesh.Trimesh, np.ndarray, np.ndarray]:
-        """(world mesh, world points (N, 3), 4x4 pose) standing on ``support_z`` at ``xy``, turned by ``yaw``."""
-        pose = np.eye(4)
-        c, s = np.cos(yaw), np.sin(yaw)
-        pose[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-        pose[:3, 3] = [xy[0], xy[1], support_z]
-        mesh = self.mesh.copy()
-        mesh.apply_transform(pose)
-        return mesh, self.points @ pose[:3, :3].T + pose[:3, 3], pose
-
-
-def _standardise(kind: str, mesh: trimesh.Trimesh, points: np.ndarray) -> ObstacleShape:
-    lo, hi = mesh.bounds
-    shift = -np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]])
-    mesh = mesh.copy()
-    mesh.apply_translation(shift)
-    return ObstacleShape(kind, mesh, np.asarray(points, float) + shift)
-
-
-def primitive_shape(kind: str, rng: np.random.Generator, config: DemoGenConfig) -> ObstacleShape:
-    """A random box (half-widths drawn independently) or upright cylinder of the configured size ranges."""
-    hz = rng.uniform(*config.half_height)
-    if kind == "box":
-        hx, hy = rng.uniform(*config.half_width, size=2)
-        mesh = trimesh.creation.box(extents=2 * np.array([hx, hy, hz]))
-    else:
-        mesh = trimesh.creation.cylinder(radius=rng.uniform(*config.half_width), height=2 * hz, sections=24)
-    points, _ = trimesh.sample.sample_surface(mesh, N_POINTS, seed=int(rng.integers(2 ** 31)))
-    return _standardise(kind, mesh, points)
-
-
-def cache_dir() -> Path:
-    root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(root) / "detaug_gym"
-
-
-_SAFELIBERO: dict[str, dict[str, ObstacleShape]] = {}
-
-
-def safelibero_shapes(suite: str) -> dict[str, ObstacleShape]:
-    """SafeLIBERO's six obstacles as the suite's L1 env compiles them (collision mesh, upright; the same
-    256 surface samples the env puts in ``obstacle_points``). Built once (~5 s), then cached on disk."""
-    suite = suite if suite in ("spatial", "object", "goal", "long") else "spatial"
-    if suite in _SAFELIBERO:
-        return _SAFELIBERO[suite]
-    path = cache_dir() / f"demogen_obstacles_{suite}_mj{mujoco.__version__}.npz"
-    if not path.exists():
-        _build_shape_cache(suite, path)
-    data = np.load(path)
-    shapes = {k: ObstacleShape(k, trimesh.Trimesh(data[f"{k}_v"], data[f"{k}_f"], process=False), data[f"{k}_p"])
-              for k in SAFELIBERO_TYPES}
-    _SAFELIBERO[suite] = shapes
-    return shapes
-
-
-def _build_shape_cache(suite: str, path: Path) -> None:
-    import gymnasium as gym
-
-    import detaug_gym  # noqa: F401
-    from detaug_gym.geometry.meshes import geom_pose_in_body, geom_trimesh
-
-    spec = get_suite(suite)
-    if spec.shape_source_level is None:
-        raise ValueError(f"suite {suite!r} has no scene with SafeLIBERO's obstacle set; use --shapes primitives")
-    env = gym.make(spec.env_id(spec.shape_source_level))
-    try:
-        scene = env.unwrapped.scene_for(0)
-        arrays = {}
-        for kind, h in scene.obstacles.items():
-            parts = []  # the handle's own geom list: parked obstacles have their contacts switched off
-            for g in h.geom_ids:
-                part = geom_trimesh(scene.model, int(g))
-                part.apply_transform(geom_pose_in_body(scene.model, int(g)))
-                parts.append(part)
-            mesh = trimesh.util.concatenate(parts)
-            rot = np.zeros(9)
-            mujoco.mju_quat2Mat(rot, h.upright_quat)
-            rot = rot.reshape(3, 3)
-            upright = trimesh.Trimesh(mesh.vertices @ rot.T, mesh.faces, process=False)
-            shape = _standardise(kind, upright, h.local_points @ rot.T)
-            arrays.update({f"{kind}_v": shape.mesh.vertices, f"{kind}_f": shape.mesh.faces, f"{kind}_p": shape.points})
-    finally:
-        env.close()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **arrays)
-    tmp.replace(path)
-
-
-def sample_shape(rng: np.random.Generator, config: DemoGenConfig, suite: str) -> ObstacleShape:
-    use_safelibero = config.shapes == "safelibero" or (config.shapes == "all" and rng.random() < 0.5)
-    if use_safelibero:
-        return safelibero_shapes(suite)[SAFELIBERO_TYPES[int(rng.integers(len(SAFELIBERO_TYPES)))]]
-    return primitive_shape(PRIMITIVES[int(rng.integers(2))], rng, config)
 
 
 # ---------------------------------------------------------------------------------------------- robot proxy
@@ -244,12 +130,11 @@ class DemoGenSource:
     footprints: list
     rots: np.ndarray  # (T, 3, 3) grip-site rotations of the source
     carrying: np.ndarray  # (T,) frame lies between a grasp's close and its release
-    suite: str
+    suite: SuiteSpec
 
     @classmethod
-    def build(cls, env, demo, config: DemoGenConfig, suite: str) -> DemoGenSource:
-        ctx = SourceContext.build(env, demo, config.segment, config.ik, config.feasibility.penetration)
-        problem = env.unwrapped.placement_problem(np.random.default_rng(0))
+    def build(cls, ctx: SourceContext, config: DemoGenConfig, suite: SuiteSpec) -> DemoGenSource:
+        problem = ctx.env.unwrapped.placement_problem(np.random.default_rng(0))
         footprints = [problem.pick, problem.place, *problem.others]
         held = {i: held_part(ctx, i) for i in range(len(ctx.segmentation.transits))}
         carrying = np.zeros(len(ctx.pos), dtype=bool)
@@ -267,12 +152,20 @@ class DemoGenSource:
 
 
 @dataclass
-class Placement:
+class TrainObstacle:
+    """An obstacle placed for one sample; it exists only in the data (the replay runs without it).
+
+    Attributes:
+        mesh: its world-frame mesh; points: (N_POINTS, 3) world-frame surface samples; pose: 4x4.
+        blocked: indices (into the segmentation's transits) of the transits whose original path hits it.
+        table_top: height (m) of the support it stands on.
+    """
+
     shape: ObstacleShape
     mesh: trimesh.Trimesh
     points: np.ndarray
     pose: np.ndarray
-    blocked: list[int]  # transit indices whose original path hits the obstacle
+    blocked: list[int]
     table_top: float
 
 
@@ -295,12 +188,12 @@ def path_hits(src: DemoGenSource, mesh: trimesh.Trimesh, table_top: float, frame
     return False
 
 
-def sample_placement(src: DemoGenSource, rng: np.random.Generator, config: DemoGenConfig) -> Placement | None:
+def sample_obstacle(src: DemoGenSource, rng: np.random.Generator, config: DemoGenConfig) -> TrainObstacle | None:
     """An obstacle that blocks at least one transit and leaves the scene objects and unchanged frames clear."""
     ctx = src.ctx
     transits = [i for i, ok in ctx.bendable.items() if ok]
     for _ in range(config.placement_tries):
-        shape = sample_shape(rng, config, src.suite)
+        shape = sample_shape(rng, src.suite, config.shapes, config.half_width, config.half_height)
         i = transits[int(rng.integers(len(transits)))]
         tr = ctx.segmentation.transits[i]
         path = ctx.pos[tr.start:tr.end + 1]
@@ -320,7 +213,7 @@ def sample_placement(src: DemoGenSource, rng: np.random.Generator, config: DemoG
             changed[ctx.segmentation.transits[j].start + 1:ctx.segmentation.transits[j].end] = True
         if path_hits(src, mesh, support, np.flatnonzero(~changed), None):
             continue
-        return Placement(shape, mesh, points, pose, blocked, support)
+        return TrainObstacle(shape, mesh, points, pose, blocked, support)
     return None
 
 
@@ -333,7 +226,7 @@ class Detour:
     raw_nodes: int
 
 
-def plan_detour(src: DemoGenSource, place: Placement, i: int, rng: np.random.Generator,
+def plan_detour(src: DemoGenSource, obstacle: TrainObstacle, i: int, rng: np.random.Generator,
                 config: DemoGenConfig) -> Detour | str:
     """RRT-Connect + shortcut + smoothing + retiming for transit ``i``; a rejection reason on failure."""
     ctx = src.ctx
@@ -341,9 +234,9 @@ def plan_detour(src: DemoGenSource, place: Placement, i: int, rng: np.random.Gen
     parts = src.parts(i) if tr.kind == "carry" else src.hand
     start, goal = ctx.pos[tr.start], ctx.pos[tr.end]
     r0, r1 = src.rots[tr.start], src.rots[tr.end]
-    probe = ProxyWorld(place.mesh, place.table_top, parts)
-    table_top = min(place.table_top, probe.lowest_point(start, r0), probe.lowest_point(goal, r1)) - 0.005
-    world = ProxyWorld(place.mesh, table_top, parts)
+    probe = ProxyWorld(obstacle.mesh, obstacle.table_top, parts)
+    table_top = min(obstacle.table_top, probe.lowest_point(start, r0), probe.lowest_point(goal, r1)) - 0.005
+    world = ProxyWorld(obstacle.mesh, table_top, parts)
     is_free = world.free_in_all([r0, r1])
     if not (is_free(start) and is_free(goal)):
         return "endpoint_blocked"
@@ -414,116 +307,59 @@ def place_hull(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return mesh.convex_hull
 
 
-def try_sample(src: DemoGenSource, rng: np.random.Generator, config: DemoGenConfig, max_length: int):
-    """One obstacle + detours + checks + replay: ``(placement, detours, plan, recording, reason)``."""
-    ctx = src.ctx
-    place = sample_placement(src, rng, config)
-    if place is None:
-        return None, None, None, None, "no_placement"
-    detours = []
-    for i in place.blocked:
-        d = plan_detour(src, place, i, rng, config)
-        if isinstance(d, str):
-            return place, None, None, None, d
-        detours.append(d)
-    plan = build_detour_plan(ctx, detours)
-    if plan.n_steps > max_length:
-        return place, detours, plan, None, "too_long"
-    for k in range(len(plan.spans)):
-        reason = ctx.check_span(plan, k, config.feasibility)
-        if reason is not None:
-            return place, detours, plan, None, reason
-    obs = reset_to_demo(ctx.env, ctx.demo)
-    held = {k: ctx.held[ctx.transit_index(s.sample.transit)] for k, s in enumerate(plan.spans)}
-    held_body = {k: h.body for k, h in held.items() if h is not None}
-    rec = run_plan(ctx.env, obs, plan, ctx.demo.actions, config.replay, held_body, tail=tail_steps(ctx.demo))
-    if not config.validate:
-        return place, detours, plan, rec, None
-    reason = ctx.replay_reason(plan, rec, config.replay)
-    if reason is not None:
-        return place, detours, plan, rec, reason
-    carried = sorted({h.body for h in ctx.held.values() if h is not None})
-    if replay_penetration(ctx, np.asarray(rec.states), place.mesh, carried) > config.replay_tolerance:
-        return place, detours, plan, rec, "replay_collision"
-    return place, detours, plan, rec, None
+# ---------------------------------------------------------------------------------------------- the mode
+class DemoGenMode(Mode):
+    """Train-time obstacles and planned detours (see the module docstring). DemoGen demos carry no label
+    (``label_size`` 0): the obstacle cloud is their conditioning."""
+
+    name = "demogen"
+    config_cls = DemoGenConfig
+
+    def prepare(self, ctx: SourceContext, config: DemoGenConfig, suite: SuiteSpec) -> DemoGenSource:
+        return DemoGenSource.build(ctx, config, suite)
+
+    def skip_reason(self, source: DemoGenSource) -> str | None:
+        ctx = source.ctx
+        return None if ctx.segmentation.grasps and any(ctx.bendable.values()) else "no_transit"
+
+    def propose(self, source: DemoGenSource, rng: np.random.Generator, config: DemoGenConfig) -> Proposal | str:
+        """An obstacle on a transit's path and a detour for every transit it blocks."""
+        obstacle = sample_obstacle(source, rng, config)
+        if obstacle is None:
+            return "no_placement"
+        detours = []
+        for i in obstacle.blocked:
+            detour = plan_detour(source, obstacle, i, rng, config)
+            if isinstance(detour, str):
+                return detour
+            detours.append(detour)
+        plan = build_detour_plan(source.ctx, detours)
+        ordered = sorted(detours, key=lambda d: d.transit.start)  # the plan's spans are in time order
+        spans = [{"path_length": s.arc_len, "rrt_nodes": d.raw_nodes} for s, d in zip(plan.spans, ordered)]
+        pose, bounds = obstacle.pose, obstacle.mesh.bounds
+        attrs = {"obstacle_kind": obstacle.shape.kind,
+                 "obstacle_pose": pose[:3, 3].tolist() + [float(np.arctan2(pose[1, 0], pose[0, 0]))],
+                 "obstacle_size": (0.5 * (bounds[1] - bounds[0])).tolist()}
+        return Proposal(plan, np.zeros(0), attrs, spans, obstacle_points=obstacle.points, detail=obstacle)
+
+    def accept(self, source: DemoGenSource, proposal: Proposal, recording, config: DemoGenConfig) -> str | None:
+        """``replay_collision`` when the recorded robot or held object reaches into the obstacle."""
+        carried = sorted({h.body for h in source.ctx.held.values() if h is not None})
+        depth = replay_penetration(source.ctx, np.asarray(recording.states), proposal.detail.mesh, carried)
+        return "replay_collision" if depth > config.replay_tolerance else None
+
+    def add_arguments(self, group) -> None:
+        group.add_argument("--shapes", choices=("all", "safelibero", "primitives"), default="all",
+                           help="obstacle shapes: SafeLIBERO's six and random boxes/cylinders (all, default)")
+        group.add_argument("--placement-tries", type=int, default=60, help="obstacle placements per sample (60)")
+        group.add_argument("--clearance", type=float, default=0.01, help="hand proxy inflation, m (default 0.01)")
+        group.add_argument("--rrt-iters", type=int, default=2000, help="RRT-Connect iterations (default 2000)")
+
+    def make_config(self, ns, stages: dict) -> DemoGenConfig:
+        if ns.placement_tries < 1:
+            raise SystemExit("error: --placement-tries must be >= 1")
+        return DemoGenConfig(**stages, shapes=ns.shapes, placement_tries=ns.placement_tries,
+                             proxy_margin=ns.clearance, planner=PlannerConfig(max_iters=ns.rrt_iters))
 
 
-def augment_source(env, demo, copies: int, rng: np.random.Generator, config: DemoGenConfig,
-                   label_len: int) -> SourceResult:
-    """Up to ``copies`` accepted DemoGen copies of ``demo`` (see the module docstring)."""
-    start = time.perf_counter()
-    result = SourceResult()
-    suite = suite_of(str(demo.attrs.get("env_id", "SafeLibero-Spatial-Free-v0")))
-    src = DemoGenSource.build(env, demo, config, suite)
-    max_length = length_limit(env, demo, config.max_length)
-    if not src.ctx.segmentation.grasps or not any(src.ctx.bendable.values()):
-        result.reasons["no_transit"] += 1
-        result.seconds = time.perf_counter() - start
-        return result
-    for _ in range(copies):
-        for _ in range(config.tries):
-            result.tries += 1
-            place, detours, plan, rec, reason = try_sample(src, rng, config, max_length)
-            if reason is not None:
-                result.reasons[reason] += 1
-                continue
-            result.demos.append(augmented_demo(demo, place, detours, plan, rec, config, label_len))
-            break
-    result.seconds = time.perf_counter() - start
-    return result
-
-
-def augmented_demo(source, place: Placement, detours: list[Detour], plan: Plan, rec, config: DemoGenConfig,
-                   label_len: int):
-    """A :class:`~detaug_gym.data.Demo` of the replay, with the obstacle's cloud and the provenance."""
-    from detaug_gym.augment.detaug import _jsonable
-    from detaug_gym.data import Demo
-
-    actions = np.asarray(rec.actions, dtype=np.float32)
-    rewards = np.zeros(len(actions), dtype=np.float32)
-    rewards[-1] = float(rec.success)
-    transits = [{"kind": s.sample.transit.kind, "grasp": s.sample.transit.grasp,
-                 "source_start": s.sample.transit.start, "source_end": s.sample.transit.end,
-                 "start": s.start, "end": s.end, "path_length": s.arc_len, "chord": s.chord,
-                 "rrt_nodes": d.raw_nodes} for s, d in zip(plan.spans, sorted(detours, key=lambda d: d.transit.start))]
-    attrs = {k: v for k, v in source.attrs.items() if k != "num_samples"}
-    attrs.update({
-        "source_demo": source.name, "augmented": True, "augment_mode": "demogen",
-        "obstacle_kind": place.shape.kind,
-        "obstacle_pose": place.pose[:3, 3].tolist() + [float(np.arctan2(place.pose[1, 0], place.pose[0, 0]))],
-        "obstacle_size": (0.5 * (place.mesh.bounds[1] - place.mesh.bounds[0])).tolist(),
-        "transits": transits, "max_deviation": rec.max_deviation, "max_offset_drift": rec.max_offset_drift,
-        "augment_params": _jsonable(config.as_dict()),
-    })
-    return Demo(actions=actions, states=np.asarray(rec.states), obs=rec.stacked_obs(),
-                gripper_command=actions[:, -1].copy(), attrs=attrs, label=np.zeros(label_len, np.float32),
-                rewards=rewards, dones=rewards.copy(), obstacle_points=place.points.astype(np.float32))
-
-
-# ---------------------------------------------------------------------------------------------- CLI hooks
-def add_arguments(parser) -> None:
-    """DemoGen's options of ``python -m detaug_gym.augment --mode demogen``."""
-    g = parser.add_argument_group("demogen")
-    g.add_argument("--shapes", choices=("all", "safelibero", "primitives"), default="all",
-                   help="obstacle shapes: SafeLIBERO's six and random boxes/cylinders (all, default)")
-    g.add_argument("--tries", type=int, default=4, help="samples per requested copy (default 4)")
-    g.add_argument("--placement-tries", type=int, default=60, help="obstacle placements per sample (60)")
-    g.add_argument("--clearance", type=float, default=0.01, help="hand proxy inflation, m (default 0.01)")
-    g.add_argument("--rrt-iters", type=int, default=2000, help="RRT-Connect iterations (default 2000)")
-    g.add_argument("--max-length", type=int, default=None, help="longest demo in steps (default: env limit)")
-    g.add_argument("--max-speed", type=float, default=0.012, help="planned peak eef speed, m/step (0.012)")
-    g.add_argument("--tolerance", type=float, default=0.015, help="max eef distance from the detour on replay (m)")
-    g.add_argument("--grasp-tolerance", type=float, default=0.008,
-                   help="max shift (m) of a held object in the hand at the start of its carry, against the source")
-    g.add_argument("--no-validate", action="store_true", help="keep samples whose replay fails (not recommended)")
-
-
-def make_config(ns) -> DemoGenConfig:
-    """The :class:`DemoGenConfig` of parsed command-line options."""
-    if ns.tries < 1 or ns.placement_tries < 1:
-        raise SystemExit("error: --tries and --placement-tries must be >= 1")
-    return DemoGenConfig(shapes=ns.shapes, tries=ns.tries, placement_tries=ns.placement_tries,
-                         proxy_margin=ns.clearance, max_length=ns.max_length, validate=not ns.no_validate,
-                         planner=PlannerConfig(max_iters=ns.rrt_iters),
-                         timing=Timing(max_speed=ns.max_speed),
-                         replay=ReplayConfig(tolerance=ns.tolerance, grasp_tolerance=ns.grasp_tolerance))
+MODE = DemoGenMode()

@@ -1,16 +1,12 @@
 """The augmentation run shared by every mode: input/output files, resume, progress bar and the report.
 
-A *mode* (``detaug`` here; ``demogen`` can be added the same way) is a module that provides
-
-    add_arguments(parser)                    # its own command-line options
-    make_config(namespace) -> config         # those options as a config object (with ``as_dict()``)
-    augment_source(env, demo, copies, rng, config, label_len) -> SourceResult
-
-and is registered in :data:`MODES` by import path, so only the chosen mode is imported.
+A *mode* is a :class:`~detaug_gym.augment.engine.Mode` (it proposes plans; the engine checks, replays and
+records them per source demo, :func:`~detaug_gym.augment.engine.augment_source`). :data:`MODES` maps its
+name to ``"module:attribute"``, so only the chosen mode is imported.
 
 Output layout: the originals first (``label`` = zeros, ``augmented = False``), then per source its
-accepted copies (``augmented = True``, ``source_demo``, ``phi``/``theta`` per transit, ``transits``,
-``augment_params``), written through :class:`detaug_gym.data.DatasetWriter`. A sidecar JSON file
+accepted copies (``augmented = True``, ``source_demo``, ``augment_mode``, ``transits``, ``augment_params`` and
+the mode's own attributes), written through :class:`detaug_gym.data.DatasetWriter`. A sidecar JSON file
 (``<out>.progress.json``) lists the finished sources and the running statistics; on restart, sources
 already listed are skipped and copies of an unfinished source are dropped and redone.
 """
@@ -19,6 +15,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -26,14 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
-MODES = {"detaug": "detaug_gym.augment.detaug", "demogen": "detaug_gym.augment.demogen"}
+from detaug_gym.data.dataset import DatasetError
+
+MODES = {"detaug": "detaug_gym.augment.detaug:MODE", "demogen": "detaug_gym.augment.demogen:MODE"}
 
 
 def load_mode(name: str):
-    """Import the mode module called ``name``; ``ValueError`` lists the valid names."""
+    """The :class:`~detaug_gym.augment.engine.Mode` called ``name`` (imported now); ``ValueError`` lists the
+    valid names."""
     if name not in MODES:
         raise ValueError(f"unknown mode {name!r}; valid modes: {', '.join(MODES)}")
-    return importlib.import_module(MODES[name])
+    module, attribute = MODES[name].split(":")
+    return getattr(importlib.import_module(module), attribute)
 
 
 @dataclass
@@ -87,8 +88,27 @@ def read_progress(out: Path, suite: str) -> RunStats:
     """The sidecar's statistics, or fresh ones when the output file does not exist yet."""
     side = progress_path(out)
     if out.exists() and side.exists():
-        return RunStats.from_json(json.loads(side.read_text()))
+        try:
+            return RunStats.from_json(json.loads(side.read_text()))
+        except (json.JSONDecodeError, TypeError) as exc:
+            raise DatasetError(f"{side}: unreadable progress file ({exc}); delete it to redo every source") from exc
     return RunStats(suite=suite)
+
+
+def check_files(inp: Path, out: Path) -> None:
+    """``DatasetError`` when ``out`` is ``inp`` (the run would modify its own source) or an existing ``out``
+    is not a readable HDF5 file (it could not be resumed)."""
+    if inp.resolve() == out.resolve() or (out.exists() and os.path.samefile(inp, out)):
+        raise DatasetError(f"{out}: is the input file too; augmenting would modify its source, choose another --out")
+    if out.exists():
+        import h5py
+
+        try:
+            with h5py.File(out, "r"):
+                pass
+        except OSError as exc:
+            raise DatasetError(f"{out}: cannot resume, not a readable HDF5 file ({exc}); "
+                               "delete it or choose another --out") from exc
 
 
 def write_progress(out: Path, stats: RunStats) -> None:
@@ -161,15 +181,22 @@ def run(args: RunArgs, progress: bool = True) -> RunStats:
     from tqdm import tqdm
 
     import detaug_gym  # noqa: F401  (registers the env ids)
+    from detaug_gym.augment.engine import augment_source
     from detaug_gym.data import DatasetWriter, load
+    from detaug_gym.envs.suites import suite_of_env
 
     mode = load_mode(args.mode)
+    check_files(args.inp, args.out)
     dataset = load(args.inp)
-    env_args = dict(dataset.attrs.get("env_args") or {})
-    env_id = env_args.get("env_name") or dataset.demos[0].attrs["env_id"]
-    label_len = mode.label_size(env_id)
     sources = select_sources(dataset.demos, args.limit)
-    stats = read_progress(args.out, mode.suite_of(env_id))
+    if not sources:
+        raise DatasetError(f"{args.inp}: no demos to augment ({len(dataset.demos)} demos, none an original "
+                           "collected without action noise)")
+    env_args = dict(dataset.attrs.get("env_args") or {})
+    env_id = env_args.get("env_name") or sources[0].attrs["env_id"]
+    suite = suite_of_env(env_id)[0]
+    label_len = mode.label_size(suite)
+    stats = read_progress(args.out, suite.name)
     done = set(stats.done)
     drop_unfinished(args.out, done)
     env = gym.make(env_id, **env_args.get("env_kwargs", {}))
@@ -184,8 +211,8 @@ def run(args: RunArgs, progress: bool = True) -> RunStats:
             bar = tqdm(todo, desc=f"{args.mode} {env_id}", unit="demo", disable=not progress,
                        initial=len(sources) - len(todo), total=len(sources))
             for index, demo in bar:
-                result = mode.augment_source(env, demo, args.copies, source_rng(args.seed, index), args.config,
-                                             label_len)
+                result = augment_source(env, demo, args.copies, source_rng(args.seed, index), mode, suite,
+                                        args.config)
                 for new in result.demos:
                     writer.append(new)
                 stats.add(demo.name, args.copies, result)
