@@ -23,10 +23,11 @@ from detaug_gym.augment.feasibility import (
     held_offset_drift,
     path_kinematics_reason,
 )
-from detaug_gym.augment.ik import ArmIK, IKConfig, mat_to_quat_xyzw
-from detaug_gym.augment.plan import Plan, rotations
+from detaug_gym.augment.ik import ArmIK, IKConfig
+from detaug_gym.augment.plan import Plan
 from detaug_gym.augment.replay import Recording, ReplayConfig
 from detaug_gym.augment.segment import Segmentation, SegmentConfig, Transit, segment_gripper
+from detaug_gym.rotations import mat_to_quat_xyzw, quat_xyzw_to_mat
 
 
 def reset_to_demo(env, demo) -> dict:
@@ -97,7 +98,7 @@ class SourceContext:
         span = plan.spans[span_index]
         tr = span.sample.transit
         targets_pos = plan.target_pos[span.start:span.end + 1]
-        targets_rot = rotations(plan.target_quat[span.start:span.end + 1])
+        targets_rot = quat_xyzw_to_mat(plan.target_quat[span.start:span.end + 1])
         scene = self.scene
         q0 = self.qpos[tr.start, scene.arm_qpos]
         self.ik.load(self.qpos[tr.start])

@@ -21,9 +21,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-# mat_to_quat_xyzw is unused here: augment/context.py still imports it from this module and is frozen while the
-# config rewrite lands. Drop it from this line once context.py imports it from detaug_gym.rotations.
-from detaug_gym.rotations import mat_to_quat_xyzw, rotation_error  # noqa: F401
+from detaug_gym.rotations import rotation_error
 
 
 @dataclass(frozen=True)

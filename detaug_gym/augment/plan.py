@@ -24,10 +24,6 @@ from detaug_gym.augment.arcs import (
     source_profile,
 )
 from detaug_gym.augment.segment import Transit
-
-# augment/context.py (frozen while the config rewrite lands) imports ``rotations`` ((N, 4) xyzw -> (N, 3, 3))
-# from this module; drop this alias once it imports quat_xyzw_to_mat from detaug_gym.rotations.
-from detaug_gym.rotations import quat_xyzw_to_mat as rotations  # noqa: F401
 from detaug_gym.rotations import slerp
 
 
