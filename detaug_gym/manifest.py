@@ -4,7 +4,8 @@ mixing two runs' episodes.
 
 What may change between runs into one folder: methods, suites, levels, seeds and the episode count (episodes
 are keyed by method, env, task, episode and seed, and the table shows the asked ones). What may not: the env
-options (``--env-kwargs``) and the checkpoint behind a method already in the folder.
+options (``--env-kwargs``), the checkpoint behind a method already in the folder and the seeding scheme
+(:data:`detaug_gym.seeds.EPISODE_SCHEME`: a seed names other episodes under another scheme).
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
+
+from detaug_gym.seeds import EPISODE_SCHEME
 
 MANIFEST = "run.json"
 CHECKPOINT_FILES = ("model.pt", "config.json", "normalization.json")
@@ -91,6 +94,10 @@ def check_manifest(out: Path, cfg, methods: list[str], suites: list[str]) -> Non
     if old is None:
         return
     problems = []
+    scheme = old.get("episode_scheme", 1)
+    if scheme != EPISODE_SCHEME:
+        problems.append(f"the folder's episodes were drawn under seeding scheme {scheme}, this version draws them "
+                        f"under scheme {EPISODE_SCHEME} (the same seed is another episode)")
     old_env = old.get("config", {}).get("env_kwargs", [])
     if sorted(old_env) != sorted(cfg.env_kwargs):
         problems.append(f"env options differ: the folder has --env-kwargs {' '.join(old_env) or '(none)'}, this run "
@@ -118,6 +125,7 @@ def write_manifest(out: Path, cfg, methods: list[str], suites: list[str]) -> Non
         "config": asdict(cfg),
         "detaug_gym_version": _version(),
         "git_revision": git_revision(),
+        "episode_scheme": EPISODE_SCHEME,
         "checkpoints": merged,
         "updated": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "history": [*old.get("history", []), {"methods": methods, "suites": suites, "levels": cfg.levels,

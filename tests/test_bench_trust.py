@@ -14,6 +14,7 @@ import pytest
 
 import detaug_gym  # noqa: F401
 from detaug_gym import bench
+from detaug_gym.envs.suites import SUITES
 from detaug_gym.report import eval_info, repair_log, summarise, table_rows, wilson
 
 
@@ -102,6 +103,13 @@ def test_duplicates_count_once_and_a_run_with_other_env_options_is_refused(tmp_p
     # another seed is its own set of episodes; the table shows the asked seeds only
     text = bench.run(_config(tmp_path, seeds=[1]))
     assert len(_lines(tmp_path)) == 4 and "| 2 |" in text.split("## Per level")[0]
+    # a folder whose episodes were drawn under the seeding scheme before episode_rng (no "episode_scheme") is refused
+    manifest = json.loads((tmp_path / "run.json").read_text())
+    assert manifest["episode_scheme"] == 2
+    del manifest["episode_scheme"]
+    (tmp_path / "run.json").write_text(json.dumps(manifest))
+    with pytest.raises(SystemExit, match="seeding scheme 1"):
+        bench.run(_config(tmp_path, seeds=[1]))
 
 
 def test_simulator_blow_up_ends_the_episode_as_an_error():
@@ -162,3 +170,24 @@ def test_a_ten_step_video_decodes_to_its_frames(tmp_path):
     env.close()
     frames = list(iio.imiter(path))
     assert len(frames) == 11 and frames[0].shape == (256, 256, 3)  # the start frame and one per step
+
+
+def test_one_seed_gives_unrelated_episodes_in_different_cells():
+    """With the task fixed, reset(seed=s) drew the same init-state index and obstacle type in every suite, level
+    and task (the env's stream was the seed alone); the draws now mix in the cell, and a seed still fixes them."""
+    from detaug_gym.seeds import episode_rng
+
+    cells = [("spatial", "L1", 0), ("spatial", "L1", 1), ("spatial", "L2", 0), ("goal", "L1", 0)]
+    firsts = {cell: [int(episode_rng(7, *cell).integers(50)) for _ in range(5)] for cell in cells}
+    assert len({tuple(v) for v in firsts.values()}) == len(cells)
+
+    draws = {}
+    for suite, level, task in cells[:3]:
+        env = gym.make(SUITES[suite].env_id(level), task=task)
+        draws[(suite, level, task)] = [(info["init_state"], info["obstacle"])
+                                       for info in (env.reset(seed=s)[1] for s in range(6))]
+        assert env.reset(seed=3)[1]["init_state"] == draws[(suite, level, task)][3][0]
+        env.close()
+    assert len({tuple(v) for v in draws.values()}) == 3
+    init_states = [[d[0] for d in v] for v in draws.values()]
+    assert init_states[0] != init_states[1] != init_states[2]

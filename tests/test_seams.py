@@ -185,9 +185,16 @@ def test_scripted_expert_takes_its_recipe_from_the_context_not_the_scene():
 
 @pytest.mark.slow
 def test_long_l1_support_ray_passes_overlapping_robot_links():
-    """SafeLibero-Long-L1, task 1, seed 16 raised "no support surface": the downward ray bounced between two
-    overlapping robot links; it now steps through a link it already passed."""
-    env = gym.make("SafeLibero-Long-L1-v0", task=1)
-    obs, info = env.reset(seed=16)
-    assert info["obstacle"] is not None and obs["obstacle_mask"][0] == 1.0
-    env.close()
+    """SafeLibero-Long-L1 task 1 at LIBERO init state 26 (what seed 16 drew before the per-cell seeding) raised
+    "no support surface": the downward ray bounced between two overlapping robot links; it now steps through a
+    link it already passed."""
+    import mujoco
+
+    from detaug_gym.envs.safe_libero import build_libero_scene
+
+    scene, init_states = build_libero_scene(SUITES["long"].tasks_for("L1")[1], with_obstacles=True)
+    scene.set_state(init_states[26])
+    mujoco.mj_forward(scene.model, scene.data)
+    height = scene.support_height(np.array([-0.04685271, -0.05752771]))
+    assert 0.0 < height < 1.5
+    scene.sim_env.close()

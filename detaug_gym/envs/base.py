@@ -1,8 +1,9 @@
 """The gymnasium env shared by the SafeLIBERO-style suites and the Newton-style pick-and-place.
 
-Subclasses say how to build a :class:`~detaug_gym.envs.scene.Scene` for a task and how to sample an
-episode (task, init state, obstacle); this class owns everything else: the Dict observation, action
-checks, the control loop (fast or stock OSC_POSE), SafeLIBERO's collision rule and the info metrics.
+Subclasses say how to build a :class:`~detaug_gym.envs.scene.Scene` for a task and how to pick an episode's
+task; this class owns everything else: drawing the init state and obstacle from the seed and the cell
+(:func:`detaug_gym.seeds.episode_rng`), the Dict observation, action checks, the control loop (fast or stock
+OSC_POSE), SafeLIBERO's collision rule and the info metrics.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from detaug_gym.envs.obstacles import (
 from detaug_gym.envs.placement import Placement, PlacementProblem, place_obstacle
 from detaug_gym.envs.scene import SETTLE_ACTION, Scene
 from detaug_gym.envs.suites import SuiteSpec, TaskSpec
+from detaug_gym.seeds import episode_rng
 
 ACTION_DIM = 7
 SETTLE_STEPS = 10
@@ -76,8 +78,8 @@ class ObstacleManipulationEnv(gym.Env):
     obstacle_types: tuple[str, ...] = OBSTACLE_TYPES
 
     def __init__(self, *, suite: SuiteSpec, level: str, max_steps: int | None = None,
-                 obstacle: str | list[str] | None = None, controller: str = "fast",
-                 render_mode: str | None = None) -> None:
+                 obstacle: str | list[str] | None = None, init_state: int | None = None,
+                 controller: str = "fast", render_mode: str | None = None) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"unknown render_mode {render_mode!r}; valid: None, 'rgb_array'")
         if max_steps is not None and not (_is_int(max_steps) and max_steps >= 1):
@@ -86,6 +88,7 @@ class ObstacleManipulationEnv(gym.Env):
         self.suite = suite
         self.level = suite.check_level(level)
         self.tasks: tuple[TaskSpec, ...] = suite.tasks_for(self.level)
+        self.fixed_init_state = None if init_state is None else suite.check_init_state(init_state)
         self.max_steps = None if max_steps is None else int(max_steps)
         num_tasks, object_slots = len(self.tasks), suite.object_slots
         if controller not in CONTROLLERS:
@@ -127,8 +130,8 @@ class ObstacleManipulationEnv(gym.Env):
     def _build_scene(self, task: int) -> Scene:
         raise NotImplementedError
 
-    def _sample_episode(self, rng: np.random.Generator, options: dict) -> tuple[int, int]:
-        """Return ``(task, init_state index)`` for a new episode."""
+    def _sample_task(self, rng: np.random.Generator, options: dict) -> int:
+        """Return the task index of a new episode (``options["task"]``, the fixed one, or a draw)."""
         raise NotImplementedError
 
     def _load_init_state(self, scene: Scene, task: int, init_state: int, rng: np.random.Generator) -> None:
@@ -141,8 +144,11 @@ class ObstacleManipulationEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         options = dict(options or {})
-        rng = self.np_random
-        task, init_state = self._sample_episode(rng, options)
+        task = self._sample_task(self.np_random, options)
+        rng = episode_rng(int(self.np_random.integers(2**63)), self.suite.name, self.level, task)
+        init_state = options.get("init_state", self.fixed_init_state)
+        init_state = (int(rng.integers(self.suite.num_init_states)) if init_state is None
+                      else self.suite.check_init_state(init_state))
         scene = self.scene_for(task)
         self.scene = scene
         scene.reset_dynamics()

@@ -42,7 +42,7 @@ class NewtonPickPlaceEnv(ObstacleManipulationEnv):
 
     Args:
         cylinder: add the cylinder obstacle (the ``-Cylinder-`` id).
-        init_state: fix the layout index (0-49); default: drawn from the reset seed.
+        init_state: fix the layout index (0-49); default: drawn from the reset seed and the level.
         controller: ``"fast"`` or ``"stock"``.
         max_episode_steps: truncate after this many steps (``gym.make`` applies the suite's 200 instead).
     """
@@ -54,17 +54,12 @@ class NewtonPickPlaceEnv(ObstacleManipulationEnv):
                  render_mode: str | None = None) -> None:
         suite = SUITES["newton"]
         self.cylinder = bool(cylinder)
-        self.fixed_init_state = None if init_state is None else suite.check_init_state(init_state)
         kwargs = {} if controller is None else {"controller": controller}
         super().__init__(suite=suite, level="L2" if cylinder else "Free", max_steps=max_episode_steps,
-                         obstacle=obstacle, render_mode=render_mode, **kwargs)
+                         obstacle=obstacle, init_state=init_state, render_mode=render_mode, **kwargs)
 
-    def _sample_episode(self, rng: np.random.Generator, options: dict) -> tuple[int, int]:
-        task = self.suite.resolve_task(self.level, options.get("task", 0))
-        init_state = options.get("init_state", self.fixed_init_state)
-        init_state = (int(rng.integers(self.suite.num_init_states)) if init_state is None
-                      else self.suite.check_init_state(init_state))
-        return task, init_state
+    def _sample_task(self, rng: np.random.Generator, options: dict) -> int:
+        return self.suite.resolve_task(self.level, options.get("task", 0))
 
     def _build_scene(self, task: int) -> Scene:
         return build_newton_scene(self.cylinder)

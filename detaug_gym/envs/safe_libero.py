@@ -27,8 +27,9 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         suite: ``"spatial" | "object" | "goal" | "long"`` (case-insensitive).
         level: ``"L1" | "L2" | "Free"``.
         task: fix the task (index, key or language); default: drawn from the reset seed.
-        obstacle: restrict the obstacle type(s); default: all six, drawn from the seed (L1/L2 only).
-        init_state: fix the index into LIBERO's 50 official init states; default: drawn from the seed.
+        obstacle: restrict the obstacle type(s); default: all six, drawn like ``init_state`` (L1/L2 only).
+        init_state: fix the index into LIBERO's 50 official init states; default: drawn from the seed and the
+            cell (suite, level, task), see :func:`detaug_gym.seeds.episode_rng`.
         controller: ``"fast"`` or ``"stock"`` (robosuite's own controller).
         max_episode_steps: truncate after this many steps (``gym.make`` applies the suite's limit instead).
     """
@@ -43,19 +44,14 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
             raise ValueError(f"unknown suite {suite!r}; valid suites: {', '.join(valid)}")
         level = spec.check_level(level)
         self.fixed_task = None if task is None else spec.resolve_task(level, task)
-        self.fixed_init_state = None if init_state is None else spec.check_init_state(init_state)
         self._init_states: dict[int, np.ndarray] = {}
         kwargs = {} if controller is None else {"controller": controller}
         super().__init__(suite=spec, level=level, max_steps=max_episode_steps, obstacle=obstacle,
-                         render_mode=render_mode, **kwargs)
+                         init_state=init_state, render_mode=render_mode, **kwargs)
 
-    def _sample_episode(self, rng: np.random.Generator, options: dict) -> tuple[int, int]:
+    def _sample_task(self, rng: np.random.Generator, options: dict) -> int:
         task = options.get("task", self.fixed_task)
-        task = int(rng.integers(len(self.tasks))) if task is None else self.suite.resolve_task(self.level, task)
-        init_state = options.get("init_state", self.fixed_init_state)
-        init_state = (int(rng.integers(self.suite.num_init_states)) if init_state is None
-                      else self.suite.check_init_state(init_state))
-        return task, init_state
+        return int(rng.integers(len(self.tasks))) if task is None else self.suite.resolve_task(self.level, task)
 
     def _build_scene(self, task: int) -> Scene:
         scene, init_states = build_libero_scene(self.tasks[task], with_obstacles=self.level != "Free")
