@@ -31,6 +31,9 @@ from detaug_gym.seeds import episode_rng
 
 ACTION_DIM = 7
 SETTLE_STEPS = 10
+SETTLE_MODES = ("steps", "still")
+STILL_SPEED = 1e-4  # m per step (summed |dx|): below this the obstacle counts as still
+MAX_SETTLE_STEPS = 200
 COLLISION_DISPLACEMENT = 1e-3  # m, SafeLIBERO: summed absolute displacement of the obstacle
 # MuJoCo resets the simulation by itself when one of these fires (bad qpos / qvel / qacc); the episode's state
 # is then meaningless, and without a check the env carried on and reported the reset as a collision.
@@ -79,9 +82,13 @@ class ObstacleManipulationEnv(gym.Env):
 
     def __init__(self, *, suite: SuiteSpec, level: str, max_steps: int | None = None,
                  obstacle: str | list[str] | None = None, init_state: int | None = None,
-                 controller: str = "fast", render_mode: str | None = None) -> None:
+                 controller: str = "fast", render_mode: str | None = None, settle: str = "steps") -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"unknown render_mode {render_mode!r}; valid: None, 'rgb_array'")
+        if settle not in SETTLE_MODES:
+            raise ValueError(f"unknown settle {settle!r}; valid: {', '.join(SETTLE_MODES)}")
+        self.settle = settle
+        self._support_geoms: list[int] = []
         if max_steps is not None and not (_is_int(max_steps) and max_steps >= 1):
             raise ValueError(f"max_episode_steps must be a positive integer, got {max_steps!r}")
         self.render_mode = render_mode
@@ -153,18 +160,12 @@ class ObstacleManipulationEnv(gym.Env):
         self.scene = scene
         scene.reset_dynamics()
         self._load_init_state(scene, task, init_state, rng)
-        obstacle, placement = None, None
-        if scene.obstacles and self.level in ("L1", "L2"):
-            obstacle = options.get("obstacle") or self.obstacle_choices[int(rng.integers(len(self.obstacle_choices)))]
-            self._check_obstacle(obstacle)
-            mujoco.mj_forward(scene.model, scene.data)
-            placement = self._place(scene, obstacle, rng)
-        self.episode = Episode(task, init_state, obstacle, placement)
         mujoco.mj_forward(scene.model, scene.data)
-        stepper = self._steppers[task]
-        stepper.reset()
-        for _ in range(SETTLE_STEPS):
-            stepper.step(SETTLE_ACTION)
+        obstacle, placement, support = self._set_obstacle(scene, task, options, rng)
+        self.episode = Episode(task, init_state, obstacle, placement)
+        self._support_geoms = support
+        mujoco.mj_forward(scene.model, scene.data)
+        self._settle(self._steppers[task])
         self._steps = 0
         self._obstacle_ref = self._obstacle_position()
         self._collided = False
@@ -291,6 +292,34 @@ class ObstacleManipulationEnv(gym.Env):
             raise ValueError(f"unknown obstacle type {kind!r}; valid types: {', '.join(self.obstacle_types)}")
         return kind
 
+    def _set_obstacle(self, scene: Scene, task: int, options: dict, rng: np.random.Generator
+                      ) -> tuple[str | None, Placement | None, list[int]]:
+        """Put this episode's obstacle in the scene: ``(type, placement, support geoms)``, where the support
+        (a pedestal) counts with the obstacle for contact and clearance. Procedural: drawn and placed."""
+        if not (scene.obstacles and self.level in ("L1", "L2")):
+            return None, None, []
+        obstacle = options.get("obstacle") or self.obstacle_choices[int(rng.integers(len(self.obstacle_choices)))]
+        self._check_obstacle(obstacle)
+        placement = self._place(scene, obstacle, rng)
+        support = [] if placement.pedestal is None else [scene.pedestals[placement.pedestal].geom_id]
+        return obstacle, placement, support
+
+    def _settle(self, stepper) -> None:
+        """SafeLIBERO's settle: :data:`SETTLE_STEPS` no-op steps (gripper open); with ``settle="still"``, then
+        on until the obstacle moves less than :data:`STILL_SPEED` per step (at most :data:`MAX_SETTLE_STEPS`)."""
+        stepper.reset()
+        for _ in range(SETTLE_STEPS):
+            stepper.step(SETTLE_ACTION)
+        if self.settle != "still" or self._active_obstacle() is None:
+            return
+        before = self._obstacle_position()
+        for _ in range(MAX_SETTLE_STEPS - SETTLE_STEPS):
+            stepper.step(SETTLE_ACTION)
+            now = self._obstacle_position()
+            if np.abs(now - before).sum() < STILL_SPEED:
+                return
+            before = now
+
     def _place(self, scene: Scene, obstacle: str, rng: np.random.Generator) -> Placement:
         handle = scene.obstacles[obstacle]
         problem = self._placement_problem(scene, rng)
@@ -314,11 +343,7 @@ class ObstacleManipulationEnv(gym.Env):
         return None if handle is None else self.scene.data.xpos[handle.body_id].copy()
 
     def _obstacle_geoms(self) -> np.ndarray:
-        handle = self._active_obstacle()
-        geoms = list(handle.geom_ids)
-        if self.episode.placement.pedestal is not None:
-            geoms.append(self.scene.pedestals[self.episode.placement.pedestal].geom_id)
-        return np.array(geoms)
+        return np.array([*self._active_obstacle().geom_ids, *self._support_geoms])
 
     def _robot_obstacle_contact(self) -> bool:
         if self._active_obstacle() is None:

@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 
 from detaug_gym.envs.base import ObstacleManipulationEnv
+from detaug_gym.envs.obstacles import procedural_bodies
 from detaug_gym.envs.placement import Footprint, PlacementProblem
 from detaug_gym.envs.scene import PickPlace, Scene, quiet
 from detaug_gym.envs.suites import SUITES
@@ -142,7 +143,7 @@ def build_newton_scene(with_cylinder: bool) -> Scene:
                     and speed < 0.05)
 
     m = sim_env.sim.model._model
-    kinds = ("cylinder",) if with_cylinder else ()
+    kinds = procedural_bodies(("cylinder",)) if with_cylinder else {}
     extra_q, extra_v = (7, 6) if with_cylinder else (0, 0)
     scene = Scene(sim_env, [PickPlace("cube", "target")], ["cube", "target"], kinds,
                   (m.nq - extra_q, m.nv - extra_v), success_fn=success)

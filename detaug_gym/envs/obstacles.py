@@ -100,13 +100,18 @@ class PedestalHandle:
     half: np.ndarray
 
 
-def obstacle_handles(model: mujoco.MjModel, kinds: tuple[str, ...] = OBSTACLE_TYPES) -> dict[str, ObstacleHandle]:
-    """Find the obstacle bodies ``obstacle_<kind>_main`` (free joint) of a compiled model."""
+def procedural_bodies(kinds: tuple[str, ...] = OBSTACLE_TYPES) -> dict[str, str]:
+    """``{kind: root body}`` of the obstacles :func:`add_obstacles_to_model` compiles in (``obstacle_<kind>_main``)."""
+    return {kind: f"{obstacle_body_name(kind)}_main" for kind in kinds}
+
+
+def obstacle_handles(model: mujoco.MjModel, bodies: dict[str, str]) -> dict[str, ObstacleHandle]:
+    """The obstacles of a compiled model, from ``{kind: root body name}`` (each body has a free joint)."""
     handles = {}
-    for kind in kinds:
-        body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"{obstacle_body_name(kind)}_main")
+    for kind, body in bodies.items():
+        body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body)
         if body_id < 0:
-            raise KeyError(f"obstacle body for {kind!r} missing from the model")
+            raise KeyError(f"obstacle body {body!r} ({kind}) missing from the model")
         joint = int(model.body_jntadr[body_id])
         geoms = np.array(
             [g for g in range(model.ngeom) if model.geom_bodyid[g] == body_id and is_collision_geom(model, g)]

@@ -12,30 +12,46 @@ from __future__ import annotations
 import numpy as np
 
 from detaug_gym.envs.base import ObstacleManipulationEnv
-from detaug_gym.envs.obstacles import OBSTACLE_TYPES
+from detaug_gym.envs.obstacles import OBSTACLE_TYPES, procedural_bodies
+from detaug_gym.envs.official import (
+    OfficialLayout,
+    SafeLiberoFiles,
+    build_official_scene,
+    is_obstacle_category,
+    lift_out_of_penetration,
+)
 from detaug_gym.envs.placement import PlacementProblem
 from detaug_gym.envs.scene import PickPlace, Scene, quiet
 from detaug_gym.envs.suites import SUITES, TaskSpec, get_suite
 
 FIXTURE_SEED = 0  # global np.random seed for robosuite's one-off fixture draw at scene build
+SCENARIOS = ("procedural", "official")
 
 
 class SafeLiberoEnv(ObstacleManipulationEnv):
-    """One SafeLIBERO suite at one level.
+    """One SafeLIBERO suite at one level, on procedural or official scenarios.
 
     Args:
         suite: ``"spatial" | "object" | "goal" | "long"`` (case-insensitive).
         level: ``"L1" | "L2" | "Free"``.
-        task: fix the task (index, key or language); default: drawn from the reset seed.
-        obstacle: restrict the obstacle type(s); default: all six, drawn like ``init_state`` (L1/L2 only).
-        init_state: fix the index into LIBERO's 50 official init states; default: drawn from the seed and the
-            cell (suite, level, task), see :func:`detaug_gym.seeds.episode_rng`.
+        task: fix the task (index, key, language or SafeLIBERO task name); default: drawn from the reset seed.
+        obstacle: restrict the obstacle type(s); default: all six, drawn like ``init_state`` (procedural L1/L2 only).
+        init_state: fix the index into the task's 50 init states (LIBERO's official ones, or SafeLIBERO's
+            episodes with ``scenarios="official"``); default: drawn from the seed and the cell (suite, level,
+            task), see :func:`detaug_gym.seeds.episode_rng`. ``reset(options={"init_state": i})`` (official:
+            also ``{"episode": i}``) picks one for an episode.
+        scenarios: ``"procedural"`` (an obstacle placed from the seed on LIBERO's scenes) or ``"official"``
+            (SafeLIBERO's own 50 episodes per task and level, read from the user's SafeLIBERO files; L1/L2).
+        safelibero_root: the ``safelibero/libero/libero`` folder of a THU-RCSCT/vlsa-aegis checkout
+            (default ``$SAFELIBERO_ROOT``); official scenarios only.
+        settle: ``"steps"`` (SafeLIBERO's 10 no-op steps) or ``"still"`` (then on until the obstacle is still).
         controller: ``"fast"`` or ``"stock"`` (robosuite's own controller).
         max_episode_steps: truncate after this many steps (``gym.make`` applies the suite's limit instead).
     """
 
     def __init__(self, suite: str, level: str, task: int | str | None = None,
                  obstacle: str | list[str] | None = None, init_state: int | None = None,
+                 scenarios: str = "procedural", safelibero_root: str | None = None, settle: str = "steps",
                  controller: str | None = None, max_episode_steps: int | None = None,
                  render_mode: str | None = None) -> None:
         valid = [name for name, s in SUITES.items() if s.entry_point.endswith(":SafeLiberoEnv")]
@@ -43,23 +59,80 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         if spec.name not in valid:
             raise ValueError(f"unknown suite {suite!r}; valid suites: {', '.join(valid)}")
         level = spec.check_level(level)
+        if scenarios not in SCENARIOS:
+            raise ValueError(f"unknown scenarios {scenarios!r}; valid: {', '.join(SCENARIOS)}")
+        self.scenarios = scenarios
+        self.files: SafeLiberoFiles | None = None
+        if scenarios == "official":
+            if level == "Free":
+                raise ValueError("official SafeLIBERO scenarios exist at L1 and L2 only; the Free level is procedural")
+            if obstacle is not None:
+                raise ValueError(f"obstacle={obstacle!r} has no effect on official scenarios (each episode's "
+                                 "obstacle is SafeLIBERO's); use scenarios='procedural' to choose obstacle types")
+            self.files = SafeLiberoFiles.locate(safelibero_root)
+        elif safelibero_root is not None:
+            raise ValueError("safelibero_root= is read by scenarios='official' only")
         self.fixed_task = None if task is None else spec.resolve_task(level, task)
+        if self.files is not None:
+            tasks = spec.tasks_for(level)
+            self.files.require(spec.name, level, tasks if self.fixed_task is None else (tasks[self.fixed_task],))
         self._init_states: dict[int, np.ndarray] = {}
+        self._layouts: dict[int, OfficialLayout] = {}
         kwargs = {} if controller is None else {"controller": controller}
         super().__init__(suite=spec, level=level, max_steps=max_episode_steps, obstacle=obstacle,
-                         init_state=init_state, render_mode=render_mode, **kwargs)
+                         init_state=init_state, render_mode=render_mode, settle=settle, **kwargs)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        options = dict(options or {})
+        if "episode" in options:
+            if self.scenarios != "official":
+                raise ValueError("options['episode'] picks an official SafeLIBERO episode (scenarios='official'); "
+                                 "procedural scenarios take options['init_state']")
+            if "init_state" in options and options["init_state"] != options["episode"]:
+                raise ValueError(f"options give episode={options['episode']!r} and init_state="
+                                 f"{options['init_state']!r}; they name the same thing, give one")
+            episode = options.pop("episode")
+            try:
+                options["init_state"] = self.suite.check_init_state(episode)
+            except ValueError:
+                raise ValueError(f"episode must be an index of SafeLIBERO's episodes, in [0, "
+                                 f"{self.suite.num_init_states}), got {episode!r}") from None
+        return super().reset(seed=seed, options=options)
+
+    def init_states(self, task: int | str) -> np.ndarray:
+        """The task's init states, ``(50, 1 + nq + nv)`` (LIBERO's, or SafeLIBERO's episodes); builds its scene."""
+        index = self.suite.resolve_task(self.level, task)
+        self.scene_for(index)
+        return self._init_states[index].copy()
 
     def _sample_task(self, rng: np.random.Generator, options: dict) -> int:
         task = options.get("task", self.fixed_task)
         return int(rng.integers(len(self.tasks))) if task is None else self.suite.resolve_task(self.level, task)
 
     def _build_scene(self, task: int) -> Scene:
-        scene, init_states = build_libero_scene(self.tasks[task], with_obstacles=self.level != "Free")
+        if self.files is not None:
+            scene, init_states, self._layouts[task] = build_official_scene(self.files, self.suite.name,
+                                                                           self.tasks[task], self.level)
+        else:
+            scene, init_states = build_libero_scene(self.tasks[task], with_obstacles=self.level != "Free")
         self._init_states[task] = init_states
         return scene
 
     def _load_init_state(self, scene: Scene, task: int, init_state: int, rng: np.random.Generator) -> None:
         scene.set_state(self._init_states[task][init_state])
+
+    def _set_obstacle(self, scene: Scene, task: int, options: dict, rng: np.random.Generator):
+        if self.files is None:
+            return super()._set_obstacle(scene, task, options, rng)
+        layout = self._layouts[task]
+        kind = layout.active_obstacle(scene)
+        if kind is None:
+            raise RuntimeError("no obstacle stands in the workspace in this episode of "
+                               f"{self.files.init_file(self.suite.name, self.tasks[task], self.level)}")
+        bases = layout.active_bases(scene)
+        lift_out_of_penetration(scene, [*bases, layout.body_of(kind)])
+        support = [int(g) for body in bases for g in scene.collision_geoms(body)]
+        return kind, None, support
 
     def _placement_problem(self, scene: Scene, rng: np.random.Generator) -> PlacementProblem:
         step = scene.pick_places[int(rng.integers(len(scene.pick_places)))]
@@ -90,25 +163,43 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
 
 def _scene_object_names(scene: Scene) -> list[str]:
     env = scene.sim_env
-    return [n for n in list(env.objects_dict) + list(env.fixtures_dict) if not n.startswith("obstacle_")]
+    objects = [n for n, obj in env.objects_dict.items() if not is_obstacle_category(obj.category_name)]
+    return [n for n in objects + list(env.fixtures_dict) if not n.startswith("obstacle_")]
 
 
 def build_libero_scene(task: TaskSpec, with_obstacles: bool) -> tuple[Scene, np.ndarray]:
-    """Compile the LIBERO scene of ``task`` (with the obstacle set when ``with_obstacles``).
+    """Compile the LIBERO scene of ``task`` (with the procedural obstacle set when ``with_obstacles``).
 
     Returns:
         The scene and LIBERO's official init states, shape ``(50, 1 + nq_libero + nv_libero)``.
     """
     with quiet():
-        import robosuite
         from libero.libero import benchmark, get_libero_path
-        from libero.libero.envs import TASK_MAPPING, bddl_utils
-        from libero.libero.envs.objects import get_object_fn
 
         bench = benchmark.get_benchmark(task.libero_suite)(task_order_index=0)
         libero_task = bench.get_task(task.libero_index)
         init_states = np.asarray(bench.get_task_init_states(task.libero_index), dtype=np.float64)
     bddl = f"{get_libero_path('bddl_files')}/{libero_task.problem_folder}/{libero_task.bddl_file}"
+    sim_env = compile_libero(bddl, with_obstacles)
+    m = sim_env.sim.model._model
+    extra_q, extra_v = (7 * len(OBSTACLE_TYPES), 6 * len(OBSTACLE_TYPES)) if with_obstacles else (0, 0)
+    scene = libero_scene(sim_env, procedural_bodies() if with_obstacles else {}, (m.nq - extra_q, m.nv - extra_v))
+    expected = 1 + scene.nq0 + scene.nv0
+    if init_states.shape[1] != expected:
+        raise RuntimeError(f"LIBERO init states of {task.key} have {init_states.shape[1]} entries, "
+                           f"the scene expects {expected}")
+    return scene, init_states
+
+
+def compile_libero(bddl: str, with_obstacles: bool = False):
+    """The robosuite env of a LIBERO-format bddl file (Panda, OSC_POSE, 20 Hz, no cameras), reset once; with
+    the procedural obstacle set appended to its model when ``with_obstacles``. Fixture poses are drawn from
+    :data:`FIXTURE_SEED`, so a scene compiles the same every time."""
+    with quiet():
+        import robosuite
+        from libero.libero.envs import TASK_MAPPING, bddl_utils
+        from libero.libero.envs.objects import get_object_fn
+
     problem = bddl_utils.get_problem_info(bddl)["problem_name"]
     env_cls = TASK_MAPPING[problem]
     if with_obstacles:
@@ -126,6 +217,11 @@ def build_libero_scene(task: TaskSpec, with_obstacles: bool) -> tuple[Scene, np.
             sim_env.reset()
     finally:
         np.random.set_state(state)
+    return sim_env
+
+
+def libero_scene(sim_env, obstacle_bodies: dict[str, str], state_size: tuple[int, int], parked: bool = True) -> Scene:
+    """A :class:`Scene` of a compiled LIBERO env: its goal's pick-place steps, their objects tracked in order."""
     goal = sim_env.parsed_problem["goal_state"]
     pick_places = [PickPlace(obj=g[1], target=g[2], relation=g[0].lower()) for g in goal]
     tracked: list[str] = []
@@ -133,16 +229,8 @@ def build_libero_scene(task: TaskSpec, with_obstacles: bool) -> tuple[Scene, np.
         for name in (step.obj, step.target):
             if name not in tracked:
                 tracked.append(name)
-    m = sim_env.sim.model._model
-    extra_q, extra_v = (7 * len(OBSTACLE_TYPES), 6 * len(OBSTACLE_TYPES)) if with_obstacles else (0, 0)
-    kinds = OBSTACLE_TYPES if with_obstacles else ()
-    scene = Scene(sim_env, pick_places, tracked, kinds, (m.nq - extra_q, m.nv - extra_v),
-                  success_fn=sim_env._check_success)
-    expected = 1 + scene.nq0 + scene.nv0
-    if init_states.shape[1] != expected:
-        raise RuntimeError(f"LIBERO init states of {task.key} have {init_states.shape[1]} entries, "
-                           f"the scene expects {expected}")
-    return scene, init_states
+    return Scene(sim_env, pick_places, tracked, obstacle_bodies, state_size, success_fn=sim_env._check_success,
+                 parked=parked)
 
 
 def _with_obstacles(env_cls, object_factory):

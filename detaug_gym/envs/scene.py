@@ -52,13 +52,15 @@ class Scene:
         sim_env: a robosuite ``MujocoEnv`` already reset once.
         pick_places: the task's sub-goals in order.
         tracked: names (bodies or sites) whose poses fill ``object_poses``.
-        obstacle_kinds: the obstacle bodies compiled into the model (``obstacle_<kind>_main``), may be empty.
+        obstacle_bodies: ``{kind: root body name}`` of the obstacles in the model, may be empty.
         state_size: ``(nq, nv)`` of the state layout without obstacles (LIBERO's init-state layout).
         success_fn: ``() -> bool`` evaluating the task's goal on the current sim state.
+        parked: the obstacles are the procedural set (:mod:`~detaug_gym.envs.obstacles`), parked out of the
+            scene until an episode activates one; ``False`` when the init state poses them (official scenarios).
     """
 
-    def __init__(self, sim_env, pick_places: list[PickPlace], tracked: list[str], obstacle_kinds: tuple[str, ...],
-                 state_size: tuple[int, int], success_fn) -> None:
+    def __init__(self, sim_env, pick_places: list[PickPlace], tracked: list[str], obstacle_bodies: dict[str, str],
+                 state_size: tuple[int, int], success_fn, parked: bool = True) -> None:
         self.sim_env = sim_env
         self.model: mujoco.MjModel = sim_env.sim.model._model
         self.data: mujoco.MjData = sim_env.sim.data._data
@@ -76,13 +78,14 @@ class Scene:
         robot_body = np.array([name.startswith(ROBOT_PREFIXES) for name in body_names])
         self.robot_geom = robot_body[m.geom_bodyid] & ((m.geom_contype | m.geom_conaffinity) > 0)
         self.robot_geom_ids = np.flatnonzero(self.robot_geom)
-        self.obstacles: dict[str, ObstacleHandle] = obstacle_handles(m, obstacle_kinds) if obstacle_kinds else {}
+        self.obstacles: dict[str, ObstacleHandle] = obstacle_handles(m, obstacle_bodies) if obstacle_bodies else {}
         self.pedestals: dict[str, PedestalHandle] = pedestal_handles(m)
+        self.parked = parked and bool(self.obstacles)
         self._tracked_refs = [self._pose_ref(name) for name in tracked]
         # Snapshot of the compiled model's static poses; fixtures are re-drawn per episode on top of it.
         self.nominal_body_pos = m.body_pos.copy()
         self.nominal_body_quat = m.body_quat.copy()
-        if self.obstacles:
+        if self.parked:
             park_all(m, self.data, self.obstacles, self.pedestals)
 
     # ------------------------------------------------------------------ indices
@@ -145,7 +148,7 @@ class Scene:
         gripper.current_action = np.zeros(gripper.dof)
         m.body_pos[:] = self.nominal_body_pos
         m.body_quat[:] = self.nominal_body_quat
-        if self.obstacles:  # mj_resetData put the obstacles back at their compiled pose, inside the scene
+        if self.parked:  # mj_resetData put the obstacles back at their compiled pose, inside the scene
             park_all(m, d, self.obstacles, self.pedestals)
 
     # ------------------------------------------------------------------ reading
@@ -188,6 +191,12 @@ class Scene:
         for b in range(root + 1, self.model.nbody):  # bodies are numbered parents first
             inside[b] = inside[parent[b]]
         return np.flatnonzero(inside)
+
+    def collision_geoms(self, body: int) -> np.ndarray:
+        """Ids of the collision geoms of ``body`` and its descendants."""
+        m = self.model
+        return np.flatnonzero(np.isin(m.geom_bodyid, self.subtree_bodies(body))
+                              & ((m.geom_contype | m.geom_conaffinity) > 0))
 
     def world_aabb(self, body_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Axis-aligned world bounds of the collision geoms of ``body_ids``; ``None`` if they have none."""

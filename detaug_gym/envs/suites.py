@@ -33,12 +33,14 @@ class TaskSpec:
         libero_suite: LIBERO benchmark name (``"libero_spatial"``; empty for Newton).
         libero_index: index of the task inside that benchmark (task order 0; -1 for Newton).
         language: the instruction, as a person would type it.
+        official: SafeLIBERO's name of the task (its bddl file's stem; empty where SafeLIBERO has none).
     """
 
     key: str
     libero_suite: str
     libero_index: int
     language: str
+    official: str = ""
 
 
 @dataclass(frozen=True)
@@ -100,7 +102,7 @@ class SuiteSpec:
         return tuple(self.tasks[i] for i in self.level_tasks[level])
 
     def resolve_task(self, level: str, task) -> int:
-        """Index (into ``tasks_for(level)``) of ``task`` given as an index, key or instruction.
+        """Index (into ``tasks_for(level)``) of ``task`` given as an index, key, instruction or SafeLIBERO name.
 
         Integer types (``int``, ``numpy.int64``) are indices; ``bool`` is not.
 
@@ -114,7 +116,7 @@ class SuiteSpec:
         elif isinstance(task, str):
             wanted = task.strip().lower().replace("_", " ")
             for i, spec in enumerate(tasks):
-                if wanted in (spec.key.replace("_", " "), spec.language):
+                if wanted in (spec.key.replace("_", " "), spec.language, spec.official.lower().replace("_", " ")):
                     return i
         choices = "; ".join(f"{i} = {t.key} ({t.language!r})" for i, t in enumerate(tasks))
         raise ValueError(f"unknown task {task!r} for {self.name} {level}; valid tasks: {choices}")
@@ -151,11 +153,21 @@ def _safelibero(name: str, max_steps: int, tasks: tuple[TaskSpec, ...], level_ta
 
 
 def _spatial(key: str, index: int, where: str) -> TaskSpec:
-    return TaskSpec(key, "libero_spatial", index, f"pick up the black bowl {where} and place it on the plate")
+    language = f"pick up the black bowl {where} and place it on the plate"
+    return TaskSpec(key, "libero_spatial", index, language, language.replace(" ", "_"))
 
 
 def _object(key: str, index: int, what: str) -> TaskSpec:
-    return TaskSpec(key, "libero_object", index, f"pick up the {what} and place it in the basket")
+    language = f"pick up the {what} and place it in the basket"
+    return TaskSpec(key, "libero_object", index, language, language.replace(" ", "_"))
+
+
+def _goal(key: str, index: int, language: str) -> TaskSpec:
+    return TaskSpec(key, "libero_goal", index, language, language.replace(" ", "_"))
+
+
+def _long(key: str, index: int, scene: int, language: str, official: str) -> TaskSpec:
+    return TaskSpec(key, "libero_10", index, language, f"LIVING_ROOM_SCENE{scene}_{official}")
 
 
 SUITES: dict[str, SuiteSpec] = {
@@ -182,11 +194,11 @@ SUITES: dict[str, SuiteSpec] = {
     "goal": _safelibero(
         "goal", 300,
         (
-            TaskSpec("bowl_on_plate", "libero_goal", 8, "put the bowl on the plate"),
-            TaskSpec("bowl_on_cabinet", "libero_goal", 4, "put the bowl on top of the cabinet"),
-            TaskSpec("bowl_on_stove", "libero_goal", 1, "put the bowl on the stove"),
-            TaskSpec("drawer_bowl", "libero_goal", 3, "open the top drawer and put the bowl inside"),
-            TaskSpec("cream_cheese_in_bowl", "libero_goal", 6, "put the cream cheese in the bowl"),
+            _goal("bowl_on_plate", 8, "put the bowl on the plate"),
+            _goal("bowl_on_cabinet", 4, "put the bowl on top of the cabinet"),
+            _goal("bowl_on_stove", 1, "put the bowl on the stove"),
+            _goal("drawer_bowl", 3, "open the top drawer and put the bowl inside"),
+            _goal("cream_cheese_in_bowl", 6, "put the cream cheese in the bowl"),
         ),
         # the drawer task: drawer handle, then bowl
         {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 4)}, object_slots=2, max_grasps=2,
@@ -194,14 +206,16 @@ SUITES: dict[str, SuiteSpec] = {
     "long": _safelibero(
         "long", 520,
         (
-            TaskSpec("soup_cheese_basket", "libero_10", 7,
-                     "put both the alphabet soup and the cream cheese box in the basket"),
-            TaskSpec("soup_sauce_basket", "libero_10", 0,
-                     "put both the alphabet soup and the tomato sauce in the basket"),
-            TaskSpec("mugs_on_plates", "libero_10", 4,
-                     "put the white mug on the left plate and the yellow and white mug on the right plate"),
-            TaskSpec("mug_plate_pudding", "libero_10", 6,
-                     "put the white mug on the plate and the chocolate pudding to the right of the plate"),
+            _long("soup_cheese_basket", 7, 1, "put both the alphabet soup and the cream cheese box in the basket",
+                  "put_both_the_alphabet_soup_and_the_cream_cheese_box_in_the_basket"),
+            _long("soup_sauce_basket", 0, 2, "put both the alphabet soup and the tomato sauce in the basket",
+                  "put_both_the_alphabet_soup_and_the_tomato_sauce_in_the_basket"),
+            _long("mugs_on_plates", 4, 5,
+                  "put the white mug on the left plate and the yellow and white mug on the right plate",
+                  "put_the_white_mug_on_the_left_plate_and_put_the_yellow_and_white_mug_on_the_right_plate"),
+            _long("mug_plate_pudding", 6, 6,
+                  "put the white mug on the plate and the chocolate pudding to the right of the plate",
+                  "put_the_white_mug_on_the_plate_and_put_the_chocolate_pudding_to_the_right_of_the_plate"),
         ),
         {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)}, object_slots=4, max_grasps=2,
     ),
