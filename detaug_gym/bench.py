@@ -42,12 +42,14 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
+from typing import Literal
 
 from tqdm import tqdm
 
 from detaug_gym.config import build_parser as config_parser
 from detaug_gym.config import config_from_namespace
-from detaug_gym.envs.suites import SUITES, get_suite, parse_level
+from detaug_gym.envs.official import INFEASIBLE, STEP_LIMITS
+from detaug_gym.envs.suites import NUM_INIT_STATES, SUITES, get_suite, parse_level
 from detaug_gym.manifest import check_manifest, method_checkpoints, write_manifest
 from detaug_gym.report import read_records, record_key, repair_log, write_report
 from detaug_gym.rollout import EpisodeKey, EpisodeRecord, run_episode
@@ -83,6 +85,17 @@ class BenchConfig:
     """Render the first N episodes of every (method, cell, seed) as mp4 under <out>/videos (needs MUJOCO_GL=egl)."""
     video_failures: bool = False
     """Also keep a video of every failed episode (renders every episode)."""
+    scenarios: Literal["procedural", "official"] = "procedural"
+    """procedural (an obstacle placed from the seed on LIBERO's scenes) or official (SafeLIBERO's own episodes from
+    --safelibero-root; --episodes then counts per task, 50 = all)."""
+    safelibero_root: str | None = None
+    """The safelibero/libero/libero folder of a THU-RCSCT/vlsa-aegis checkout (default: $SAFELIBERO_ROOT)."""
+    cells: Literal["all", "feasible"] = "all"
+    """all, or feasible: leave out what the DetAug authors omit as infeasible (Spatial task 0, Long task 0 at L1)."""
+    step_limits: Literal["suite", "aegis"] = "suite"
+    """suite (220/280/300/520 steps: LIBERO-PRO's, the DetAug authors') or aegis (AEGIS's 300/300/300/550)."""
+    settle: Literal["steps", "still"] = "steps"
+    """steps (SafeLIBERO's 10 no-op steps) or still (then on until the obstacle is still)."""
 
     def __post_init__(self) -> None:
         for name in ("episodes", "workers", "threads"):
@@ -90,6 +103,11 @@ class BenchConfig:
                 raise ValueError(f"--{name} must be >= 1, got {getattr(self, name)}")
         if self.video < 0:
             raise ValueError(f"--video must be >= 0, got {self.video}")
+        if self.scenarios == "official" and self.episodes > NUM_INIT_STATES:
+            raise ValueError(f"--episodes counts episodes per task with --scenarios official; SafeLIBERO has "
+                             f"{NUM_INIT_STATES} per task and level, got {self.episodes}")
+        if self.safelibero_root is not None and self.scenarios != "official":
+            raise ValueError("--safelibero-root is read by --scenarios official only")
         for name in ("methods", "suites", "levels", "seeds"):
             if not getattr(self, name):
                 raise ValueError(f"--{name} needs at least one value")
@@ -98,6 +116,34 @@ class BenchConfig:
     @property
     def renders(self) -> bool:
         return self.video > 0 or self.video_failures
+
+    def cell_env_kwargs(self, suite: str) -> dict:
+        """gym.make kwargs of ``suite``'s cells: --env-kwargs plus the scenario, settle and step-limit choices."""
+        kwargs = parse_env_kwargs(self.env_kwargs)
+        if self.scenarios == "official":
+            kwargs.update(scenarios="official", **({"safelibero_root": self.safelibero_root}
+                                                   if self.safelibero_root is not None else {}))
+        if self.settle != "steps":
+            kwargs["settle"] = self.settle
+        if self.step_limits == "aegis" and suite in STEP_LIMITS["aegis"]:
+            kwargs.setdefault("max_episode_steps", STEP_LIMITS["aegis"][suite])
+        return kwargs
+
+    def notes(self) -> tuple[str, ...]:
+        """What the table's caption says about these choices."""
+        notes = []
+        if self.scenarios == "official":
+            notes.append("Scenarios: the official SafeLIBERO episodes (Hu et al. 2025), read from the user's files.")
+        if self.cells == "feasible":
+            left = "; ".join(f"{s} {lv} task {', '.join(map(str, t))}" for s, by in INFEASIBLE.items()
+                             for lv, t in by.items() if s in self.suites)
+            if left:
+                notes.append(f"Left out as infeasible (as the DetAug authors do): {left}.")
+        if self.step_limits == "aegis":
+            notes.append("Step limits: AEGIS's (300 / 300 / 300 / 550).")
+        if self.settle == "still":
+            notes.append("Settle: until the obstacle is still.")
+        return tuple(notes)
 
 
 @dataclass(frozen=True)
@@ -111,6 +157,7 @@ class Job:
     video: str | None = None  # mp4 path to write
     video_failures: bool = False  # render, keep the video only if the episode fails (unless ``keep_video``)
     keep_video: bool = False
+    reset_options: tuple[tuple[str, object], ...] = ()  # beyond the task (official: SafeLIBERO's episode index)
 
 
 def parse_levels(values: list[str]) -> list[str]:
@@ -213,19 +260,24 @@ def _checkpoint_problem(path: Path) -> list[str]:
     return []
 
 
-def check_env_kwargs(cells: list[tuple[str, str]], env_kwargs: dict) -> None:
-    """Fail before any episode runs when the envs reject ``env_kwargs`` (making an env builds no scene)."""
-    if not env_kwargs:
-        return
+def check_env_kwargs(cells: list[tuple[str, str]], cfg: BenchConfig) -> None:
+    """Fail before any episode runs when the envs reject the cells' kwargs (making an env builds no scene;
+    official scenarios check their files here)."""
     import gymnasium as gym
 
     import detaug_gym  # noqa: F401
 
+    problems = []
     for suite, level in cells:
+        kwargs = cfg.cell_env_kwargs(suite)
+        if not kwargs:
+            continue
         try:
-            gym.make(SUITES[suite].env_id(level), **env_kwargs).close()
-        except (TypeError, ValueError) as exc:
-            raise SystemExit(f"--env-kwargs {env_kwargs} rejected by {SUITES[suite].env_id(level)}: {exc}") from None
+            gym.make(SUITES[suite].env_id(level), **kwargs).close()
+        except (TypeError, ValueError, FileNotFoundError) as exc:
+            problems.append(f"{SUITES[suite].env_id(level)} with {kwargs}: {exc}")
+    if problems:
+        raise SystemExit("cannot run:\n  " + "\n  ".join(problems))
 
 
 def plan_cells(suites: list[str], levels: list[str]) -> list[tuple[str, str]]:
@@ -233,19 +285,28 @@ def plan_cells(suites: list[str], levels: list[str]) -> list[tuple[str, str]]:
     return [(s, lv) for s in suites for lv in levels if lv in SUITES[s].levels]
 
 
-def plan_jobs(methods, suites, levels, episodes, seeds, env_kwargs: dict | None = None) -> list[Job]:
-    """Every (method, cell, run seed, episode) job; ``seeds`` is one run seed or a list of them."""
+def plan_jobs(methods, suites, levels, episodes, seeds, cfg: BenchConfig | None = None) -> list[Job]:
+    """Every (method, cell, run seed, episode) job; ``seeds`` is one run seed or a list of them.
+
+    Procedural: ``episodes`` per cell, episode ``i`` is task ``i mod #tasks``. Official (``cfg.scenarios``):
+    ``episodes`` per task, episode ``i`` is task ``i mod #tasks`` at SafeLIBERO's episode ``i // #tasks``.
+    ``cfg.cells == "feasible"`` drops the episodes of the infeasible tasks."""
     jobs = []
-    kwargs = tuple(sorted((env_kwargs or {}).items()))
+    official = cfg is not None and cfg.scenarios == "official"
     for run_seed in ([seeds] if isinstance(seeds, int) else seeds):
         for suite, level in plan_cells(suites, levels):
             spec = SUITES[suite]
             n_tasks = len(spec.tasks_for(level))
+            kwargs = tuple(sorted(({} if cfg is None else cfg.cell_env_kwargs(suite)).items()))
+            skip = INFEASIBLE.get(suite, {}).get(level, ()) if cfg is not None and cfg.cells == "feasible" else ()
             for method in methods:
-                for ep in range(episodes):
+                for ep in range(episodes * n_tasks if official else episodes):
+                    if ep % n_tasks in skip:
+                        continue
                     key = EpisodeKey(method, spec.env_id(level), ep % n_tasks, ep,
                                      bench_episode_seed(run_seed, suite, level, ep))
-                    jobs.append(Job(key, suite, level, run_seed, env_kwargs=kwargs))
+                    options = (("episode", ep // n_tasks),) if official else ()
+                    jobs.append(Job(key, suite, level, run_seed, env_kwargs=kwargs, reset_options=options))
     # Group by env so a worker reuses its compiled scenes, and by method so policies load once.
     return sorted(jobs, key=lambda j: (j.key.env_id, j.key.method, j.run_seed, j.key.episode))
 
@@ -288,7 +349,7 @@ def _run_job(job: Job) -> dict:
 
         hooks.append(VideoRecorder(job.video, label=job.key.method))
     record = run_episode(_CACHE[env_key], _CACHE[pol_key], job.key, job.suite, job.level, hooks=hooks,
-                         run_seed=job.run_seed)
+                         run_seed=job.run_seed, options=dict(job.reset_options))
     if render and hooks[0].frames and (job.keep_video or not record.success):
         record.video = str(hooks[0].save())
     if record.termination == "error":
@@ -323,9 +384,15 @@ def run(cfg: BenchConfig) -> str:
         raise SystemExit(f"no cell to run: suites {', '.join(suites)} have none of the levels "
                          f"{', '.join(levels)} (their levels: "
                          + "; ".join(f"{s}: {', '.join(SUITES[s].levels)}" for s in suites) + ")")
-    env_kwargs = parse_env_kwargs(cfg.env_kwargs)
+    if cfg.scenarios == "official":
+        lacking = [s for s in suites if s not in STEP_LIMITS["libero"]]
+        if lacking:
+            raise SystemExit(f"--scenarios official: {', '.join(lacking)} has no official SafeLIBERO scenarios "
+                             f"(suites with them: {', '.join(STEP_LIMITS['libero'])})")
+        if "Free" in levels:
+            raise SystemExit("--scenarios official: SafeLIBERO has L1 and L2 only; drop --levels free")
     check_methods(methods, suites)
-    check_env_kwargs(cells, env_kwargs)
+    check_env_kwargs(cells, cfg)
     out = Path(cfg.out)
     log = prepare_out(out)
     check_manifest(out, cfg, methods, suites)
@@ -335,7 +402,9 @@ def run(cfg: BenchConfig) -> str:
     records = read_records(log)
     done = {record_key(r) for r in records if r.get("termination") != "error"}
     retried = sum(r.get("termination") == "error" for r in records)
-    planned = plan_jobs(methods, suites, levels, cfg.episodes, cfg.seeds, env_kwargs)
+    planned = plan_jobs(methods, suites, levels, cfg.episodes, cfg.seeds, cfg=cfg)
+    if not planned:
+        raise SystemExit("no episode to run: --cells feasible leaves out every task of the asked cells")
     jobs = []
     for job in planned:
         if job.key.as_tuple() in done:
@@ -369,7 +438,8 @@ def run(cfg: BenchConfig) -> str:
                 for result in pool.map(_run_job, jobs, chunksize=1):
                     record(result)
     wanted = {j.key.as_tuple()[1:] for j in planned}  # any method's lines of the planned episodes
-    text = write_report([r for r in read_records(log) if record_key(r)[1:] in wanted], out)
+    text = write_report([r for r in read_records(log) if record_key(r)[1:] in wanted], out, notes=cfg.notes(),
+                        beside_paper=cfg.scenarios == "official")
     print(text)
     print(f"wrote {out}/table.md, table.csv, levels.csv, tasks.csv, eval_info.json, results.png")
     return text

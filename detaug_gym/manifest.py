@@ -4,7 +4,8 @@ mixing two runs' episodes.
 
 What may change between runs into one folder: methods, suites, levels, seeds and the episode count (episodes
 are keyed by method, env, task, episode and seed, and the table shows the asked ones). What may not: the env
-options (``--env-kwargs``), the checkpoint behind a method already in the folder and the seeding scheme
+options (``--env-kwargs``, ``--scenarios``, ``--settle``, ``--step-limits``), the checkpoint behind a method
+already in the folder and the seeding scheme
 (:data:`detaug_gym.seeds.EPISODE_SCHEME`: a seed names other episodes under another scheme).
 """
 
@@ -21,6 +22,8 @@ from pathlib import Path
 from detaug_gym.seeds import EPISODE_SCHEME
 
 MANIFEST = "run.json"
+# Config fields that change what an episode is (with their value in folders written before they existed).
+EPISODE_FIELDS = {"scenarios": "procedural", "settle": "steps", "step_limits": "suite"}
 CHECKPOINT_FILES = ("model.pt", "config.json", "normalization.json")
 
 
@@ -98,6 +101,11 @@ def check_manifest(out: Path, cfg, methods: list[str], suites: list[str]) -> Non
     if scheme != EPISODE_SCHEME:
         problems.append(f"the folder's episodes were drawn under seeding scheme {scheme}, this version draws them "
                         f"under scheme {EPISODE_SCHEME} (the same seed is another episode)")
+    for name, default in EPISODE_FIELDS.items():
+        before, now = old.get("config", {}).get(name, default), getattr(cfg, name)
+        if before != now:
+            problems.append(f"--{name.replace('_', '-')} differs: the folder's episodes ran with {before}, this run "
+                            f"asks for {now}")
     old_env = old.get("config", {}).get("env_kwargs", [])
     if sorted(old_env) != sorted(cfg.env_kwargs):
         problems.append(f"env options differ: the folder has --env-kwargs {' '.join(old_env) or '(none)'}, this run "

@@ -29,6 +29,28 @@ CAPTION = ("Clean = success without collision, Total = success irrespective of c
            "mean ± std over the seeds.")
 
 
+# The DetAug paper's Table I (official SafeLIBERO; Clean / Total / Avoid, percent), for the suites it reports here.
+PAPER_TABLE_I = {
+    "spatial": {"detaug": (58.7, 73.0, 68.0), "cape": (42.0, 46.7, 71.2), "aegis": (28.1, 43.0, 57.1),
+                "demogen": (19.4, 51.7, 24.5)},
+}
+
+
+def paper_rows(summary) -> tuple[list[str], list[list[str]]]:
+    """Our Clean / Total / Avoid per (method, suite) beside the paper's, for the methods and suites it reports."""
+    header = ["Method", "Suite"] + [f"{m} ({who})" for m in METRICS[:3] for who in ("ours", "paper")]
+    rows = []
+    for method in sorted({k[0] for k in summary}):
+        for suite, reported in PAPER_TABLE_I.items():
+            paper = reported.get(method.split(":")[0])
+            cells = [v for k, v in summary.items() if k[0] == method and k[1] == suite]
+            if paper is None or not cells:
+                continue
+            ours = [_group_rate(cells, m)[0] for m in METRICS[:3]]
+            rows.append([method, suite] + [x for o, p in zip(ours, paper) for x in (_fmt(o), f"{p:.1f}")])
+    return header, rows
+
+
 def read_records(path: Path) -> list[dict]:
     """All episode lines of a JSONL file; a later line for the same episode supersedes an earlier one (a
     retried error), and a line that does not parse (torn by a crash; :func:`repair_log` removes it) is skipped."""
@@ -280,19 +302,24 @@ def eval_info(records: list[dict]) -> dict:
     }
 
 
-def write_report(records: list[dict], out: Path) -> str:
+def write_report(records: list[dict], out: Path, notes: tuple[str, ...] = (), beside_paper: bool = False) -> str:
     """Write ``table.md``, ``table.csv``, ``levels.csv``, ``tasks.csv``, ``eval_info.json`` and ``results.png``
-    into ``out``; return the Markdown."""
+    into ``out``; return the Markdown. ``notes`` extend the caption (which scenarios, which cells were left
+    out); ``beside_paper`` adds the paper's Table I numbers next to ours (meaningful on official scenarios)."""
     summary = summarise(records)
     header, rows = table_rows(summary)
     lheader, lrows = level_rows(summary)
     theader, trows = task_rows(records)
     text = (
         "## Table I (percent; averaged over levels within a suite)\n\n" + markdown(header, rows)
-        + "\n\n" + CAPTION + "\n\n"
-        "## Per level\n\n" + markdown(lheader, lrows) + "\n\n"
-        "## Per task (successes / episodes)\n\n" + markdown(theader, trows) + "\n"
+        + "\n\n" + " ".join((CAPTION, *notes)) + "\n\n"
     )
+    pheader, prows = paper_rows(summary)
+    if beside_paper and prows:
+        text += ("## Beside the paper (DetAug, Table I: official SafeLIBERO)\n\n" + markdown(pheader, prows)
+                 + "\n\n")
+    text += ("## Per level\n\n" + markdown(lheader, lrows) + "\n\n"
+             "## Per task (successes / episodes)\n\n" + markdown(theader, trows) + "\n")
     (out / "table.md").write_text(text)
     for name, (h, r) in {"table.csv": (header, rows), "levels.csv": (lheader, lrows),
                          "tasks.csv": (theader, trows)}.items():

@@ -274,14 +274,15 @@ class ObstacleMetrics(Hook):
 
 
 def run_episode(env, policy: Policy, key: EpisodeKey, suite: str, level: str, hooks: Iterable[Hook] = (),
-                run_seed: int = 0) -> EpisodeRecord:
-    """Roll ``policy`` out in ``env`` for one episode (with extra ``hooks``, e.g. a video); never raises
-    (errors are recorded)."""
+                run_seed: int = 0, options: dict | None = None) -> EpisodeRecord:
+    """Roll ``policy`` out in ``env`` for one episode (with extra ``hooks``, e.g. a video; reset ``options``
+    beyond the task, e.g. an official ``episode``); never raises (errors are recorded)."""
     record = EpisodeRecord(key.method, key.env_id, suite, level, key.task, key.episode, key.seed, run_seed=run_seed)
     start = time.perf_counter()
     metrics = ObstacleMetrics()
     try:
-        result = rollout(env, policy, seed=key.seed, options={"task": key.task}, hooks=[metrics, *hooks])
+        result = rollout(env, policy, seed=key.seed, options={**(options or {}), "task": key.task},
+                         hooks=[metrics, *hooks])
         record.task_key = result.context.task_key if result.context else None
         record.success = bool(result.info["is_success"])
         record.termination = "success" if record.success else "timeout"

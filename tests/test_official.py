@@ -203,3 +203,52 @@ def test_every_real_scenario_settles_where_its_state_put_the_obstacle(suite):
     if suite == "goal":  # the fourth Goal task differs by level
         assert SUITES["goal"].tasks_for("L1")[3].official == "open_the_top_drawer_and_put_the_bowl_inside"
         assert SUITES["goal"].tasks_for("L2")[3].official == "put_the_cream_cheese_in_the_bowl"
+
+
+def test_the_bench_plans_official_episodes_per_task_and_leaves_out_infeasible_cells():
+    from detaug_gym import bench
+
+    cfg = bench.BenchConfig(methods=["scripted"], suites=["spatial", "long"], levels=["1"], episodes=2,
+                            scenarios="official", cells="feasible")
+    jobs = bench.plan_jobs(cfg.methods, cfg.suites, ["L1"], cfg.episodes, cfg.seeds, cfg=cfg)
+    assert len(jobs) == 12  # 2 episodes x tasks 1-3, in both suites (task 0 is left out at L1)
+    assert {(j.suite, j.key.task, dict(j.reset_options)["episode"]) for j in jobs} == {
+        (s, t, e) for s in ("spatial", "long") for t in (1, 2, 3) for e in (0, 1)}
+    assert all(dict(j.env_kwargs)["scenarios"] == "official" for j in jobs)
+    assert "spatial L1 task 0" in " ".join(cfg.notes()) and "long L1 task 0" in " ".join(cfg.notes())
+    aegis = bench.BenchConfig(suites=["long"], step_limits="aegis")
+    assert aegis.cell_env_kwargs("long") == {"max_episode_steps": 550}
+    with pytest.raises(ValueError, match="50 per task"):
+        bench.BenchConfig(scenarios="official", episodes=51)
+    with pytest.raises(ValueError, match="--scenarios official only"):
+        bench.BenchConfig(safelibero_root="/x")
+
+
+def test_the_bench_refuses_incomplete_files_and_mixed_scenarios(root, tmp_path, monkeypatch):
+    from detaug_gym import bench
+
+    monkeypatch.delenv("SAFELIBERO_ROOT", raising=False)
+    cfg = bench.BenchConfig(methods=["scripted"], levels=["1"], episodes=1, scenarios="official",
+                            safelibero_root=str(root), out=str(tmp_path / "a"))
+    with pytest.raises(SystemExit, match="cannot run:(.|\n)*pick_up_the_black_bowl_on_the_ramekin"):
+        bench.run(cfg)
+    with pytest.raises(SystemExit, match="newton has no official"):
+        bench.run(bench.BenchConfig(suites=["newton"], levels=["2"], scenarios="official", out=str(tmp_path / "b")))
+    procedural = dict(methods=["random"], suites=["newton"], levels=["2"], episodes=1, out=str(tmp_path / "c"),
+                      env_kwargs=["max_episode_steps=3"])
+    bench.run(bench.BenchConfig(**procedural))
+    with pytest.raises(SystemExit, match="--settle differs"):
+        bench.run(bench.BenchConfig(**procedural, settle="still"))
+
+
+@pytest.mark.skipif(not REAL, reason="SAFELIBERO_ROOT is not set (the real SafeLIBERO files)")
+def test_the_bench_runs_real_official_episodes(tmp_path):
+    import json
+
+    from detaug_gym import bench
+
+    text = bench.run(bench.BenchConfig(methods=["scripted"], levels=["2"], episodes=1, scenarios="official",
+                                       out=str(tmp_path), env_kwargs=["max_episode_steps=30"]))
+    lines = [json.loads(x) for x in (tmp_path / "episodes.jsonl").read_text().splitlines()]
+    assert sorted(r["task"] for r in lines) == [0, 1, 2, 3] and {r["init_state"] for r in lines} == {0}
+    assert all(r["termination"] != "error" for r in lines) and "official SafeLIBERO episodes" in text

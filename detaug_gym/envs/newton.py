@@ -46,18 +46,19 @@ class NewtonPickPlaceEnv(ObstacleManipulationEnv):
         init_state: fix the layout index (0-49); default: drawn from the reset seed and the level.
         controller: ``"fast"`` or ``"stock"``.
         max_episode_steps: truncate after this many steps (``gym.make`` applies the suite's 200 instead).
+        settle: ``"steps"`` (10 no-op steps) or ``"still"`` (then on until the cylinder is still).
     """
 
     obstacle_types = ("cylinder",)
 
     def __init__(self, cylinder: bool = False, init_state: int | None = None, obstacle: str | None = None,
                  controller: str | None = None, max_episode_steps: int | None = None,
-                 render_mode: str | None = None) -> None:
+                 render_mode: str | None = None, settle: str = "steps") -> None:
         suite = SUITES["newton"]
         self.cylinder = bool(cylinder)
         kwargs = {} if controller is None else {"controller": controller}
         super().__init__(suite=suite, level="L2" if cylinder else "Free", max_steps=max_episode_steps,
-                         obstacle=obstacle, init_state=init_state, render_mode=render_mode, **kwargs)
+                         obstacle=obstacle, init_state=init_state, render_mode=render_mode, settle=settle, **kwargs)
 
     def _sample_task(self, rng: np.random.Generator, options: dict) -> int:
         return self.suite.resolve_task(self.level, options.get("task", 0))
