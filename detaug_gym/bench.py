@@ -12,6 +12,10 @@ Examples (copy-paste)::
     # videos: the first episode of every (method, cell) and every failed one, as mp4 beside the JSONL
     python -m detaug_gym.bench --seeds 0 1 --video 1 --video-failures
 
+    # the official SafeLIBERO episodes (SAFELIBERO_ROOT or --safelibero-root), 50 per task, feasible cells only
+    python -m detaug_gym.bench --methods detaug cape aegis demogen --scenarios official --suites spatial \
+        --levels 1 2 --episodes 50 --cells feasible --out results/official_spatial
+
     # obstacle-free reference runs
     python -m detaug_gym.bench --methods scripted --levels free --episodes 20 --out results/free
 
@@ -275,7 +279,7 @@ def check_env_kwargs(cells: list[tuple[str, str]], cfg: BenchConfig) -> None:
         try:
             gym.make(SUITES[suite].env_id(level), **kwargs).close()
         except (TypeError, ValueError, FileNotFoundError) as exc:
-            problems.append(f"{SUITES[suite].env_id(level)} with {kwargs}: {exc}")
+            problems.append(f"{SUITES[suite].env_id(level)} rejected the env options {kwargs}: {exc}")
     if problems:
         raise SystemExit("cannot run:\n  " + "\n  ".join(problems))
 

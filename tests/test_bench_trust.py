@@ -84,7 +84,7 @@ def test_degenerate_and_bad_values_are_errors_not_empty_tables(tmp_path):
         bench.run(_config(tmp_path / "file" / "sub"))
     with pytest.raises(SystemExit, match="no checkpoint at .*policies/detaug/object"):
         bench.run(_config(tmp_path / "x", methods=["detaug"], suites=["object"], levels=["1"]))
-    with pytest.raises(SystemExit, match="rejected by Newton"):
+    with pytest.raises(SystemExit, match="cannot run:\n  Newton-PickPlace-Cylinder-v0 rejected the env options"):
         bench.run(_config(tmp_path / "y", env_kwargs=["no_such_option=1"]))
     for argv in (["--episodes", "0"], ["--workers", "0"]):
         with pytest.raises(SystemExit):
