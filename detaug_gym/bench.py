@@ -52,7 +52,6 @@ from tqdm import tqdm
 
 from detaug_gym.config import build_parser as config_parser
 from detaug_gym.config import config_from_namespace
-from detaug_gym.envs.official import INFEASIBLE, STEP_LIMITS
 from detaug_gym.envs.suites import NUM_INIT_STATES, SUITES, get_suite, parse_level
 from detaug_gym.manifest import check_manifest, method_checkpoints, write_manifest
 from detaug_gym.report import read_records, record_key, repair_log, write_report
@@ -129,8 +128,9 @@ class BenchConfig:
                                                    if self.safelibero_root is not None else {}))
         if self.settle != "steps":
             kwargs["settle"] = self.settle
-        if self.step_limits == "aegis" and suite in STEP_LIMITS["aegis"]:
-            kwargs.setdefault("max_episode_steps", STEP_LIMITS["aegis"][suite])
+        aegis = SUITES[suite].aegis_max_steps
+        if self.step_limits == "aegis" and aegis is not None:
+            kwargs.setdefault("max_episode_steps", aegis)
         return kwargs
 
     def notes(self) -> tuple[str, ...]:
@@ -139,8 +139,8 @@ class BenchConfig:
         if self.scenarios == "official":
             notes.append("Scenarios: the official SafeLIBERO episodes (Hu et al. 2025), read from the user's files.")
         if self.cells == "feasible":
-            left = "; ".join(f"{s} {lv} task {', '.join(map(str, t))}" for s, by in INFEASIBLE.items()
-                             for lv, t in by.items() if s in self.suites)
+            left = "; ".join(f"{s} {lv} task {', '.join(map(str, t))}" for s in SUITES if s in self.suites
+                             for lv, t in SUITES[s].infeasible.items() if lv in map(parse_level, self.levels))
             if left:
                 notes.append(f"Left out as infeasible (as the DetAug authors do): {left}.")
         if self.step_limits == "aegis":
@@ -302,7 +302,7 @@ def plan_jobs(methods, suites, levels, episodes, seeds, cfg: BenchConfig | None 
             spec = SUITES[suite]
             n_tasks = len(spec.tasks_for(level))
             kwargs = tuple(sorted(({} if cfg is None else cfg.cell_env_kwargs(suite)).items()))
-            skip = INFEASIBLE.get(suite, {}).get(level, ()) if cfg is not None and cfg.cells == "feasible" else ()
+            skip = spec.infeasible.get(level, ()) if cfg is not None and cfg.cells == "feasible" else ()
             for method in methods:
                 for ep in range(episodes * n_tasks if official else episodes):
                     if ep % n_tasks in skip:
@@ -389,10 +389,10 @@ def run(cfg: BenchConfig) -> str:
                          f"{', '.join(levels)} (their levels: "
                          + "; ".join(f"{s}: {', '.join(SUITES[s].levels)}" for s in suites) + ")")
     if cfg.scenarios == "official":
-        lacking = [s for s in suites if s not in STEP_LIMITS["libero"]]
+        lacking = [s for s in suites if not SUITES[s].official]
         if lacking:
             raise SystemExit(f"--scenarios official: {', '.join(lacking)} has no official SafeLIBERO scenarios "
-                             f"(suites with them: {', '.join(STEP_LIMITS['libero'])})")
+                             f"(suites with them: {', '.join(n for n, s in SUITES.items() if s.official)})")
         if "Free" in levels:
             raise SystemExit("--scenarios official: SafeLIBERO has L1 and L2 only; drop --levels free")
     check_methods(methods, suites)

@@ -191,3 +191,11 @@ def test_one_seed_gives_unrelated_episodes_in_different_cells():
     assert len({tuple(v) for v in draws.values()}) == 3
     init_states = [[d[0] for d in v] for v in draws.values()]
     assert init_states[0] != init_states[1] != init_states[2]
+
+
+def test_importing_the_bench_leaves_mujoco_unloaded_so_main_can_choose_egl():
+    """bench.main sets MUJOCO_GL=egl for --video before MuJoCo loads; an import of MuJoCo at bench import time
+    (through an env module) made every video episode fail with "gladLoadGL error"."""
+    code = "import sys, detaug_gym.bench; sys.exit(int('mujoco' in sys.modules))"
+    assert subprocess.run([sys.executable, "-c", code], env={k: v for k, v in os.environ.items()
+                                                              if k != "MUJOCO_GL"}).returncode == 0

@@ -37,14 +37,6 @@ LEVEL_FILE_SUFFIX = {"L1": "I", "L2": "II"}
 BASE_CATEGORIES = ("box_base", "box_small_base")
 WORKSPACE_HALF_WIDTH = 0.5  # m: SafeLIBERO's active-obstacle box, |x|, |y| < 0.5 and z > 0
 PENETRATION_TOLERANCE = 1e-3  # m: deeper than this, an official obstacle or base is lifted out before the settle
-# Step limits: LIBERO-PRO's and the DetAug authors' (the default, also the suites' own), and AEGIS's.
-STEP_LIMITS = {
-    "libero": {"spatial": 220, "object": 280, "goal": 300, "long": 520},
-    "aegis": {"spatial": 300, "object": 300, "goal": 300, "long": 550},
-}
-# Cells the DetAug authors leave out as infeasible: {suite: {level: task indices}}.
-INFEASIBLE = {"spatial": {"L1": (0,), "L2": (0,)}, "long": {"L1": (0,)}}
-
 
 def is_obstacle_category(category: str) -> bool:
     """Whether a bddl object category is one of SafeLIBERO's obstacles or bases (not part of the task)."""

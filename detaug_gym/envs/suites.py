@@ -59,6 +59,9 @@ class SuiteSpec:
         num_init_states: init states per task (LIBERO's 50 official ones; Newton's 50 fixed layouts).
         shape_source_level: level whose scene holds SafeLIBERO's obstacle set (DemoGen takes its meshes
             from there), or None when the suite has none.
+        official: whether SafeLIBERO has official scenarios of this suite (``scenarios="official"``).
+        aegis_max_steps: AEGIS's step limit for the suite (the bench's ``--step-limits aegis``).
+        infeasible: task indices per level that the DetAug authors leave out as infeasible (``--cells feasible``).
     """
 
     name: str
@@ -72,6 +75,9 @@ class SuiteSpec:
     num_init_states: int = NUM_INIT_STATES
     shape_source_level: str | None = "L1"
     level_kwargs: dict[str, dict] = field(default_factory=dict)
+    official: bool = False
+    aegis_max_steps: int | None = None
+    infeasible: dict[str, tuple[int, ...]] = field(default_factory=dict)
 
     @property
     def levels(self) -> tuple[str, ...]:
@@ -145,11 +151,12 @@ def parse_level(level: str) -> str:
 
 
 def _safelibero(name: str, max_steps: int, tasks: tuple[TaskSpec, ...], level_tasks: dict, object_slots: int,
-                max_grasps: int) -> SuiteSpec:
+                max_grasps: int, aegis_max_steps: int, infeasible: dict | None = None) -> SuiteSpec:
     ids = {level: f"SafeLibero-{name.capitalize()}-{level}-v0" for level in LEVELS}
     return SuiteSpec(name, max_steps, tasks, level_tasks, object_slots, ids,
                      "detaug_gym.envs.safe_libero:SafeLiberoEnv", max_grasps,
-                     level_kwargs={level: {"suite": name, "level": level} for level in LEVELS})
+                     level_kwargs={level: {"suite": name, "level": level} for level in LEVELS},
+                     official=True, aegis_max_steps=aegis_max_steps, infeasible=infeasible or {})
 
 
 def _spatial(key: str, index: int, where: str) -> TaskSpec:
@@ -180,6 +187,7 @@ SUITES: dict[str, SuiteSpec] = {
             _spatial("bowl_on_cabinet", 9, "on the wooden cabinet"),
         ),
         {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)}, object_slots=2, max_grasps=1,
+        aegis_max_steps=300, infeasible={"L1": (0,), "L2": (0,)},
     ),
     "object": _safelibero(
         "object", 280,
@@ -189,7 +197,7 @@ SUITES: dict[str, SuiteSpec] = {
             _object("milk", 7, "milk"),
             _object("bbq_sauce", 3, "bbq sauce"),
         ),
-        {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)}, object_slots=2, max_grasps=1,
+        {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)}, object_slots=2, max_grasps=1, aegis_max_steps=300,
     ),
     "goal": _safelibero(
         "goal", 300,
@@ -201,7 +209,7 @@ SUITES: dict[str, SuiteSpec] = {
             _goal("cream_cheese_in_bowl", 6, "put the cream cheese in the bowl"),
         ),
         # the drawer task: drawer handle, then bowl
-        {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 4)}, object_slots=2, max_grasps=2,
+        {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 4)}, object_slots=2, max_grasps=2, aegis_max_steps=300,
     ),
     "long": _safelibero(
         "long", 520,
@@ -218,6 +226,7 @@ SUITES: dict[str, SuiteSpec] = {
                   "put_the_white_mug_on_the_plate_and_put_the_chocolate_pudding_to_the_right_of_the_plate"),
         ),
         {"L1": (0, 1, 2, 3), "L2": (0, 1, 2, 3)}, object_slots=4, max_grasps=2,
+        aegis_max_steps=550, infeasible={"L1": (0,)},
     ),
     "newton": SuiteSpec(
         name="newton",
