@@ -68,7 +68,7 @@ class ObstacleManipulationEnv(gym.Env):
         (-1 open, +1 close). Wrong shapes and non-finite values raise ``ValueError``.
     Info (every step): ``is_success``, ``collision`` (latched), ``robot_obstacle_contact``,
         ``obstacle_displacement``, ``min_clearance`` (m, robot collision geometry to the obstacle; inf
-        without one), ``task``, ``init_state``, ``obstacle``.
+        without one), ``task``, ``init_state``, ``obstacle``, ``obstacle_raised`` (it stands on a pedestal or base).
     Step limit: gymnasium's ``TimeLimit`` (``gym.make(id, max_episode_steps=N)``, default the suite's); an
         env built directly truncates itself only when given ``max_episode_steps``.
 
@@ -368,6 +368,7 @@ class ObstacleManipulationEnv(gym.Env):
             "task": self.episode.task,
             "init_state": self.episode.init_state,
             "obstacle": self.episode.obstacle,
+            "obstacle_raised": bool(self._support_geoms),
         }
 
     def _observation(self) -> dict[str, np.ndarray]:
