@@ -314,8 +314,8 @@ def write_report(records: list[dict], out: Path, notes: tuple[str, ...] = (), be
         "## Table I (percent; averaged over levels within a suite)\n\n" + markdown(header, rows)
         + "\n\n" + " ".join((CAPTION, *notes)) + "\n\n"
     )
-    pheader, prows = paper_rows(summary)
-    if beside_paper and prows:
+    pheader, prows = paper_rows(summary) if beside_paper else ([], [])
+    if prows:
         text += ("## Beside the paper (DetAug, Table I: official SafeLIBERO)\n\n" + markdown(pheader, prows)
                  + "\n\n")
     text += ("## Per level\n\n" + markdown(lheader, lrows) + "\n\n"

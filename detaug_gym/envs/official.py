@@ -164,7 +164,7 @@ def register_obstacle_objects(files: SafeLiberoFiles, categories: list[str]) -> 
         if getattr(OBJECTS_DICT.get(category), "asset_xml", None) == str(xml):
             continue
 
-        def __init__(self, name=category, obj_name=None, _xml=str(xml), _category=category):
+        def __init__(self, name=category, _xml=str(xml), _category=category):
             MujocoXMLObject.__init__(self, _xml, name=name, joints=[dict(type="free", damping="0.0005")],
                                      obj_type="all", duplicate_collision_geoms=False)
             self.category_name = _category
@@ -176,30 +176,15 @@ def register_obstacle_objects(files: SafeLiberoFiles, categories: list[str]) -> 
         OBJECTS_DICT[category] = type(class_name, (MujocoXMLObject,), {"__init__": __init__, "asset_xml": str(xml)})
 
 
-@dataclass(frozen=True)
-class OfficialLayout:
-    """Where the obstacles and bases of an official scene are.
+def active_obstacle(scene: Scene) -> str | None:
+    """The kind of the first obstacle (bddl order, as ``scene.obstacles`` holds them) inside the workspace box,
+    or None: SafeLIBERO's rule."""
+    return next((kind for kind, h in scene.obstacles.items() if _in_workspace(scene.data.xpos[h.body_id])), None)
 
-    Attributes:
-        obstacles: ``(kind, root body id)`` in bddl order (the order of SafeLIBERO's active-obstacle rule).
-        bases: root body ids of the bases.
-    """
 
-    obstacles: tuple[tuple[str, int], ...]
-    bases: tuple[int, ...]
-
-    def active_obstacle(self, scene: Scene) -> str | None:
-        """The kind of the first obstacle inside the workspace box, or None."""
-        for kind, body in self.obstacles:
-            if _in_workspace(scene.data.xpos[body]):
-                return kind
-        return None
-
-    def body_of(self, kind: str) -> int:
-        return dict(self.obstacles)[kind]
-
-    def active_bases(self, scene: Scene) -> list[int]:
-        return [b for b in self.bases if _in_workspace(scene.data.xpos[b])]
+def active_bases(scene: Scene, bases: tuple[int, ...]) -> list[int]:
+    """The base bodies (root body ids) inside the workspace box."""
+    return [b for b in bases if _in_workspace(scene.data.xpos[b])]
 
 
 def lift_out_of_penetration(scene: Scene, bodies: list[int], tolerance: float = PENETRATION_TOLERANCE) -> float:
@@ -236,12 +221,12 @@ def _in_workspace(pos: np.ndarray) -> bool:
 
 
 def build_official_scene(files: SafeLiberoFiles, suite: str, task: TaskSpec, level: str
-                         ) -> tuple[Scene, np.ndarray, OfficialLayout]:
+                         ) -> tuple[Scene, np.ndarray, tuple[int, ...]]:
     """Compile the official SafeLIBERO scene of ``task`` and read its init states at ``level``.
 
     Returns:
-        The scene (its obstacles posed by the state, never parked), the init states ``(50, 1 + nq + nv)`` and
-        the obstacle layout.
+        The scene (its obstacles, in bddl order, posed by the state and never parked), the init states
+        ``(50, 1 + nq + nv)`` and the root body ids of its bases.
     """
     import mujoco
 
@@ -252,21 +237,13 @@ def build_official_scene(files: SafeLiberoFiles, suite: str, task: TaskSpec, lev
     register_obstacle_objects(files, declared_obstacles(bddl))
     sim_env = compile_libero(str(bddl))
     m = sim_env.sim.model._model
-    obstacles, bases, bodies = [], [], {}
-    for name, obj in sim_env.objects_dict.items():
-        category = obj.category_name
-        if not is_obstacle_category(category):
-            continue
-        body = f"{obj.root_body}" if getattr(obj, "root_body", None) else f"{name}_main"
-        body_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, body)
-        if category in BASE_CATEGORIES:
-            bases.append(body_id)
-        else:
-            obstacles.append((obstacle_kind(category), body_id))
-            bodies[obstacle_kind(category)] = body
-    scene = libero_scene(sim_env, bodies, (m.nq, m.nv), parked=False)
+    obstacles = {obstacle_kind(obj.category_name): obj.root_body for obj in sim_env.objects_dict.values()
+                 if is_obstacle_category(obj.category_name) and obj.category_name not in BASE_CATEGORIES}
+    bases = tuple(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, obj.root_body)
+                  for obj in sim_env.objects_dict.values() if obj.category_name in BASE_CATEGORIES)
+    scene = libero_scene(sim_env, obstacles, (m.nq, m.nv), parked=False)
     states = files.init_states(suite, task, level)
     if states.shape[1] != 1 + m.nq + m.nv:
         raise ValueError(f"{files.init_file(suite, task, level)} holds states of {states.shape[1]} entries; the scene "
                          f"of {files.bddl(suite, task)} takes {1 + m.nq + m.nv} (1 + nq + nv)")
-    return scene, states, OfficialLayout(tuple(obstacles), tuple(bases))
+    return scene, states, bases

@@ -14,8 +14,9 @@ import numpy as np
 from detaug_gym.envs.base import ObstacleManipulationEnv
 from detaug_gym.envs.obstacles import OBSTACLE_TYPES, procedural_bodies
 from detaug_gym.envs.official import (
-    OfficialLayout,
     SafeLiberoFiles,
+    active_bases,
+    active_obstacle,
     build_official_scene,
     is_obstacle_category,
     lift_out_of_penetration,
@@ -77,7 +78,7 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
             tasks = spec.tasks_for(level)
             self.files.require(spec.name, level, tasks if self.fixed_task is None else (tasks[self.fixed_task],))
         self._init_states: dict[int, np.ndarray] = {}
-        self._layouts: dict[int, OfficialLayout] = {}
+        self._bases: dict[int, tuple[int, ...]] = {}
         kwargs = {} if controller is None else {"controller": controller}
         super().__init__(suite=spec, level=level, max_steps=max_episode_steps, obstacle=obstacle,
                          init_state=init_state, render_mode=render_mode, settle=settle, **kwargs)
@@ -111,8 +112,8 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
 
     def _build_scene(self, task: int) -> Scene:
         if self.files is not None:
-            scene, init_states, self._layouts[task] = build_official_scene(self.files, self.suite.name,
-                                                                           self.tasks[task], self.level)
+            scene, init_states, self._bases[task] = build_official_scene(self.files, self.suite.name,
+                                                                         self.tasks[task], self.level)
         else:
             scene, init_states = build_libero_scene(self.tasks[task], with_obstacles=self.level != "Free")
         self._init_states[task] = init_states
@@ -124,13 +125,12 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
     def _set_obstacle(self, scene: Scene, task: int, options: dict, rng: np.random.Generator):
         if self.files is None:
             return super()._set_obstacle(scene, task, options, rng)
-        layout = self._layouts[task]
-        kind = layout.active_obstacle(scene)
+        kind = active_obstacle(scene)
         if kind is None:
             raise RuntimeError("no obstacle stands in the workspace in this episode of "
                                f"{self.files.init_file(self.suite.name, self.tasks[task], self.level)}")
-        bases = layout.active_bases(scene)
-        lift_out_of_penetration(scene, [*bases, layout.body_of(kind)])
+        bases = active_bases(scene, self._bases[task])
+        lift_out_of_penetration(scene, [*bases, scene.obstacles[kind].body_id])
         support = [int(g) for body in bases for g in scene.collision_geoms(body)]
         return kind, None, support
 
