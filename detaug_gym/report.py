@@ -260,6 +260,22 @@ def task_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
+def collision_rows(records: list[dict], by: str) -> tuple[list[str], list[list[str]]]:
+    """Collided episodes per (method, suite, level), split by their ``collision_cause[by]`` (``"body"``: which
+    kind of body moved the obstacle; ``"phase"``: approach / grasp / carry / release / retreat). Records
+    from before the attribution count as ``unattributed``; errored episodes are left out, as in Table I."""
+    groups: dict[tuple, list[str]] = defaultdict(list)
+    for r in records:
+        if r.get("collision") and r.get("termination") != "error":
+            cause = r.get("collision_cause") or {}
+            groups[(r["method"], r["suite"], r["level"])].append(str(cause.get(by, "unattributed")))
+    values = sorted({v for vs in groups.values() for v in vs})
+    header = ["Method", "Suite", "Level", "Collisions", *values]
+    rows = [[m, suite, level, str(len(vs)), *(str(vs.count(v)) for v in values)]
+            for (m, suite, level), vs in sorted(groups.items())]
+    return header, rows
+
+
 def markdown(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -303,13 +319,16 @@ def eval_info(records: list[dict]) -> dict:
 
 
 def write_report(records: list[dict], out: Path, notes: tuple[str, ...] = (), beside_paper: bool = False) -> str:
-    """Write ``table.md``, ``table.csv``, ``levels.csv``, ``tasks.csv``, ``eval_info.json`` and ``results.png``
+    """Write ``table.md``, ``table.csv``, ``levels.csv``, ``tasks.csv``, ``collisions_body.csv``,
+    ``collisions_phase.csv``, ``eval_info.json`` and ``results.png``
     into ``out``; return the Markdown. ``notes`` extend the caption (which scenarios, which cells were left
     out); ``beside_paper`` adds the paper's Table I numbers next to ours (meaningful on official scenarios)."""
     summary = summarise(records)
     header, rows = table_rows(summary)
     lheader, lrows = level_rows(summary)
     theader, trows = task_rows(records)
+    bheader, brows = collision_rows(records, "body")
+    phheader, phrows = collision_rows(records, "phase")
     text = (
         "## Table I (percent; averaged over levels within a suite)\n\n" + markdown(header, rows)
         + "\n\n" + " ".join((CAPTION, *notes)) + "\n\n"
@@ -320,9 +339,13 @@ def write_report(records: list[dict], out: Path, notes: tuple[str, ...] = (), be
                  + "\n\n")
     text += ("## Per level\n\n" + markdown(lheader, lrows) + "\n\n"
              "## Per task (successes / episodes)\n\n" + markdown(theader, trows) + "\n")
+    if brows:
+        text += ("\n## Collisions by body (what moved the obstacle first)\n\n" + markdown(bheader, brows) + "\n\n"
+                 "## Collisions by phase\n\n" + markdown(phheader, phrows) + "\n")
     (out / "table.md").write_text(text)
     for name, (h, r) in {"table.csv": (header, rows), "levels.csv": (lheader, lrows),
-                         "tasks.csv": (theader, trows)}.items():
+                         "tasks.csv": (theader, trows), "collisions_body.csv": (bheader, brows),
+                         "collisions_phase.csv": (phheader, phrows)}.items():
         with open(out / name, "w", newline="") as f:
             csv.writer(f).writerows([h, *r])
     (out / "eval_info.json").write_text(json.dumps(eval_info(records), indent=1, allow_nan=True))

@@ -9,7 +9,7 @@ policy with the seed and the :class:`EpisodeContext`, then per step ``action = p
 metrics), until ``stop(step)`` (default: terminated or truncated). Only this module and ``detaug_gym/envs/``
 call ``env.step``.
 
-:func:`run_episode` is the bench's episode: a metrics hook, the policy's per-episode summary and an
+:func:`run_episode` is the bench's episode: a metrics hook, a collision attribution, the policy's per-episode summary and an
 :class:`EpisodeRecord` (one JSON line); it never raises.
 """
 
@@ -242,6 +242,7 @@ class EpisodeRecord:
     obstacle_pose: list[float] | None = None
     first_collision_step: int | None = None
     video: str | None = None
+    collision_cause: dict | None = None
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -273,16 +274,87 @@ class ObstacleMetrics(Hook):
         self.clearance = min(self.clearance, float(step.info["min_clearance"]))
 
 
+RECENT_TOUCH = 5  # steps: a touch this recent before the obstacle moved is taken as the hit
+BODY_KINDS = {"link": "link", "gripper": "gripper", "held": "held_object", "object": "object"}
+
+
+class CollisionAttribution(Hook):
+    """Who moved the obstacle, when, and what the policy believed then.
+
+    At the first collision step (the obstacle's displacement passes SafeLIBERO's threshold) it keeps who
+    touched the obstacle: the env's ``obstacle_contacts`` of that step, or of the last step that touched it
+    when that was at most :data:`RECENT_TOUCH` steps before, or else the env's ``collision_bodies`` (what was
+    within a few cm when the hit left no contact at the step's end); and the policy's ``belief()``, when it
+    has one. At the end of the
+    episode the executed gripper commands are cut into phases the way the augmentation cuts demos
+    (:meth:`~detaug_gym.augment.segment.Segmentation.phase`), which places the collision step in one.
+
+    :meth:`cause` gives the record's ``collision_cause``: ``step`` (1-based, as ``first_collision_step``),
+    ``contact_step`` (the step of the contacts used), ``first_touch_step`` (the first step anything touched
+    the obstacle), ``bodies`` (the contact labels), ``body`` (their kinds joined by ``+``: ``link``,
+    ``gripper``, ``held_object``, ``object``; ``none`` when nothing was seen touching it), ``phase``,
+    ``bent`` (whether DetAug's augmentation bends that part of a demo: a transit, not a window or margin),
+    and from the belief ``plan_deviation`` (rad, largest joint difference between the planned and the
+    executed arm configuration after that step) with everything else the policy reported (``plan_cost``,
+    ``zero_cost_share``, ...).
+    """
+
+    def __init__(self, policy: Policy | None = None) -> None:
+        self.policy = policy
+        self.commands: list[float] = []
+        self.step: int | None = None
+        self.first_touch: int | None = None
+        self._last_touch: tuple[int, tuple[str, ...]] | None = None
+        self._cause: dict = {}
+
+    def on_step(self, step: Step) -> None:
+        self.commands.append(float(step.sent[-1]))
+        contacts = tuple(step.info.get("obstacle_contacts", ()))
+        if contacts:
+            self._last_touch = (step.index + 1, contacts)
+            self.first_touch = self.first_touch or step.index + 1
+        if self.step is not None or not step.info["collision"]:
+            return
+        self.step = step.index + 1
+        contact_step, bodies = self._last_touch or (None, ())
+        if contact_step is None or self.step - contact_step > RECENT_TOUCH:
+            near = tuple(step.info.get("collision_bodies", ()))
+            contact_step, bodies = (self.step, near) if near else (None, ())
+        if contact_step is not None and (self.first_touch is None or contact_step < self.first_touch):
+            self.first_touch = contact_step  # a hit between two steps' contact lists
+        kinds = sorted({BODY_KINDS[b.split(":", 1)[0]] for b in bodies})
+        self._cause = {"step": self.step, "contact_step": contact_step, "bodies": list(bodies),
+                       "body": "+".join(kinds) or "none"}
+        belief = getattr(self.policy, "belief", None)
+        belief = dict(belief()) if callable(belief) else {}
+        planned = belief.pop("planned_joint_pos", None)
+        if planned is not None:
+            executed = np.asarray(step.next_obs["robot_joint_pos"], np.float64)
+            belief["plan_deviation"] = float(np.abs(np.asarray(planned) - executed).max())
+        self._cause.update(belief)
+
+    def cause(self) -> dict | None:
+        """The collision's attribution (see the class docstring), or None when the obstacle never moved."""
+        if self.step is None:
+            return None
+        from detaug_gym.augment.segment import segment_gripper  # here: its import loads MuJoCo (see bench.main)
+
+        seg = segment_gripper(np.asarray(self.commands))
+        frame = self.step - 1
+        return {**self._cause, "first_touch_step": self.first_touch, "phase": seg.phase(frame),
+                "bent": not bool(seg.frozen_mask()[frame])}
+
+
 def run_episode(env, policy: Policy, key: EpisodeKey, suite: str, level: str, hooks: Iterable[Hook] = (),
                 run_seed: int = 0, options: dict | None = None) -> EpisodeRecord:
     """Roll ``policy`` out in ``env`` for one episode (with extra ``hooks``, e.g. a video; reset ``options``
     beyond the task, e.g. an official ``episode``); never raises (errors are recorded)."""
     record = EpisodeRecord(key.method, key.env_id, suite, level, key.task, key.episode, key.seed, run_seed=run_seed)
     start = time.perf_counter()
-    metrics = ObstacleMetrics()
+    metrics, attribution = ObstacleMetrics(), CollisionAttribution(policy)
     try:
         result = rollout(env, policy, seed=key.seed, options={**(options or {}), "task": key.task},
-                         hooks=[metrics, *hooks])
+                         hooks=[metrics, attribution, *hooks])
         record.task_key = result.context.task_key if result.context else None
         record.success = bool(result.info["is_success"])
         record.termination = "success" if record.success else "timeout"
@@ -294,6 +366,7 @@ def run_episode(env, policy: Policy, key: EpisodeKey, suite: str, level: str, ho
     record.init_state, record.obstacle = metrics.start_info.get("init_state"), metrics.start_info.get("obstacle")
     record.collision, record.contact, record.steps = metrics.collision, metrics.contact, metrics.steps
     record.obstacle_pose, record.first_collision_step = metrics.obstacle_pose, metrics.first_collision
+    record.collision_cause = attribution.cause()
     record.min_clearance = None if math.isinf(metrics.clearance) else metrics.clearance
     record.wall_time = time.perf_counter() - start
     return record

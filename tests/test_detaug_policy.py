@@ -94,3 +94,25 @@ def test_bad_options_fail_at_construction(checkpoint):
         DetAugPolicy(checkpoint=path, cost="distance")
     with pytest.raises(ValueError, match="valid: select"):
         DetAugPolicy(checkpoint=path, mode="vote")
+
+
+def test_belief_reports_the_selected_plan_and_its_candidates(checkpoint):
+    path, obs = checkpoint
+    policy = DetAugPolicy(checkpoint=path, k=8, action_steps=2, seed=0)
+    obs = _with_obstacle_at_hand(obs)
+    policy.reset(seed=1)
+    assert policy.belief() == {}  # nothing planned yet
+    policy.act(obs)
+    first = policy.belief()
+    diag = policy.diagnostics[-1]
+    assert first["plan_cost"] == diag.best_cost > 0 and first["candidates"] == 8
+    assert first["zero_cost_share"] == 0.0  # every candidate starts inside the box
+    assert first["plan_age"] == 1 and first["label_change"] is None
+    plan_row = policy._plan[1, policy.layout.key_slice("robot_joint_pos")]
+    assert np.allclose(first["planned_joint_pos"], plan_row)
+    policy.act(obs)
+    assert policy.belief()["plan_age"] == 2
+    policy.act(obs)  # a replan: a fresh label
+    third = policy.belief()
+    assert third["plan_age"] == 1 and third["label_change"] == pytest.approx(
+        float(np.linalg.norm(policy.diagnostics[-1].label - policy.diagnostics[-2].label)))

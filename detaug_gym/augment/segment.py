@@ -27,6 +27,9 @@ import numpy as np
 from detaug_gym.actions import CONTROL_DT
 
 
+PHASES = ("approach", "grasp", "carry", "release", "retreat")
+
+
 @dataclass(frozen=True)
 class SegmentConfig:
     """How demos are cut.
@@ -97,6 +100,22 @@ class Segmentation:
             if t.grasp == grasp and t.kind == kind:
                 return t
         return None
+
+    def phase(self, frame: int) -> str:
+        """What the motion is doing at ``frame``, one of :data:`PHASES`: ``"grasp"`` / ``"release"`` inside the
+        interaction window of a grasp's close / release, ``"approach"`` before a close window, ``"carry"``
+        between a grasp's two windows, ``"retreat"`` after the last release window."""
+        for k in range(len(self.grasps)):
+            (close_lo, close_hi), (release_lo, release_hi) = self.windows[2 * k], self.windows[2 * k + 1]
+            if frame < close_lo:
+                return "approach"
+            if frame <= close_hi:
+                return "grasp"
+            if frame < release_lo:
+                return "carry"
+            if frame <= release_hi:
+                return "release"
+        return "retreat" if self.grasps else "approach"
 
     def frozen_mask(self) -> np.ndarray:
         """(T,) True at frames no transit replaces (windows, margins, anything outside transits)."""

@@ -35,6 +35,8 @@ SETTLE_MODES = ("steps", "still")
 STILL_SPEED = 1e-4  # m per step (summed |dx|): below this the obstacle counts as still
 MAX_SETTLE_STEPS = 200
 COLLISION_DISPLACEMENT = 1e-3  # m, SafeLIBERO: summed absolute displacement of the obstacle
+NEAR_CONTACT = 0.03  # m: at the first collision step with nothing in contact, bodies this close count as the hit
+ROBOT_CONTACTS = ("link:", "gripper:")  # the labels of Scene.contact_labels that are the robot's own bodies
 # MuJoCo resets the simulation by itself when one of these fires (bad qpos / qvel / qacc); the episode's state
 # is then meaningless, and without a check the env carried on and reported the reset as a collision.
 INSTABILITY_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
@@ -67,6 +69,10 @@ class ObstacleManipulationEnv(gym.Env):
     Action: ``Box(-1, 1, (7,))``: OSC_POSE delta (scales in :mod:`detaug_gym.actions`) and the gripper
         (-1 open, +1 close). Wrong shapes and non-finite values raise ``ValueError``.
     Info (every step): ``is_success``, ``collision`` (latched), ``robot_obstacle_contact``,
+        ``obstacle_contacts`` (who touches the obstacle now, e.g. ``("gripper:gripper0_leftfinger",
+        "held:akita_black_bowl_1")``; see :meth:`~detaug_gym.envs.scene.Scene.contact_labels`),
+        ``collision_bodies`` (at the step the collision starts: the contacts, or when a fast hit left none at the
+        step's end, the bodies within :data:`NEAR_CONTACT`; empty at every other step),
         ``obstacle_displacement``, ``min_clearance`` (m, robot collision geometry to the obstacle; inf
         without one), ``task``, ``init_state``, ``obstacle``, ``obstacle_raised`` (it stands on a pedestal or base).
     Step limit: gymnasium's ``TimeLimit`` (``gym.make(id, max_episode_steps=N)``, default the suite's); an
@@ -169,7 +175,7 @@ class ObstacleManipulationEnv(gym.Env):
         self._steps = 0
         self._obstacle_ref = self._obstacle_position()
         self._collided = False
-        return self.observe(), self._info(contact=False)
+        return self.observe(), self._info(contacts=())
 
     def step(self, action):
         if self.scene is None:
@@ -183,8 +189,7 @@ class ObstacleManipulationEnv(gym.Env):
         self._steppers[self.episode.task].step(np.clip(action, -1.0, 1.0))
         self._check_stable(before)
         self._steps += 1
-        contact = self._robot_obstacle_contact()
-        info = self._info(contact=contact)
+        info = self._info(contacts=self._obstacle_contacts())
         terminated = bool(info["is_success"])
         truncated = self.max_steps is not None and self._steps >= self.max_steps and not terminated
         return self.observe(), float(terminated), terminated, truncated, info
@@ -345,24 +350,27 @@ class ObstacleManipulationEnv(gym.Env):
     def _obstacle_geoms(self) -> np.ndarray:
         return np.array([*self._active_obstacle().geom_ids, *self._support_geoms])
 
-    def _robot_obstacle_contact(self) -> bool:
+    def _obstacle_contacts(self, within: float = 0.0) -> tuple[str, ...]:
         if self._active_obstacle() is None:
-            return False
+            return ()
         mask = np.zeros(self.scene.model.ngeom, dtype=bool)
         mask[self._obstacle_geoms()] = True
-        return self.scene.robot_touches(mask)
+        return self.scene.contact_labels(mask, within)
 
-    def _info(self, contact: bool) -> dict:
+    def _info(self, contacts: tuple[str, ...]) -> dict:
         displacement = 0.0
         clearance = float("inf")
         if self._active_obstacle() is not None:
             displacement = float(np.abs(self._obstacle_position() - self._obstacle_ref).sum())
             clearance = self.scene.min_distance(self._obstacle_geoms())
-        self._collided = self._collided or displacement > COLLISION_DISPLACEMENT
+        hit = not self._collided and displacement > COLLISION_DISPLACEMENT
+        self._collided = self._collided or hit
         return {
             "is_success": bool(self.scene.success_fn()),
             "collision": self._collided,
-            "robot_obstacle_contact": bool(contact),
+            "robot_obstacle_contact": any(c.startswith(ROBOT_CONTACTS) for c in contacts),
+            "obstacle_contacts": contacts,
+            "collision_bodies": (contacts or self._obstacle_contacts(within=NEAR_CONTACT)) if hit else (),
             "obstacle_displacement": displacement,
             "min_clearance": clearance,
             "task": self.episode.task,

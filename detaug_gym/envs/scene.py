@@ -78,6 +78,9 @@ class Scene:
         robot_body = np.array([name.startswith(ROBOT_PREFIXES) for name in body_names])
         self.robot_geom = robot_body[m.geom_bodyid] & ((m.geom_contype | m.geom_conaffinity) > 0)
         self.robot_geom_ids = np.flatnonzero(self.robot_geom)
+        self.gripper_geom = self.robot_geom & np.array([name.startswith("gripper0_") for name in body_names])[m.geom_bodyid]
+        self._body_names = body_names
+        self._movable = _movable_bodies(m)
         self.obstacles: dict[str, ObstacleHandle] = obstacle_handles(m, obstacle_bodies) if obstacle_bodies else {}
         self.pedestals: dict[str, PedestalHandle] = pedestal_handles(m)
         self.parked = parked and bool(self.obstacles)
@@ -252,10 +255,53 @@ class Scene:
         n = self.data.ncon
         return self.data.contact.geom1[:n].copy(), self.data.contact.geom2[:n].copy()
 
-    def robot_touches(self, geom_mask: np.ndarray) -> bool:
-        """Whether any robot collision geom is in contact with a geom where ``geom_mask`` is True."""
+    def touching_geoms(self, geom_mask: np.ndarray) -> np.ndarray:
+        """Ids of the geoms (outside ``geom_mask``) in contact with a geom where ``geom_mask`` is True."""
         g1, g2 = self.contact_pairs()
-        return bool(np.any((self.robot_geom[g1] & geom_mask[g2]) | (self.robot_geom[g2] & geom_mask[g1])))
+        partners = np.concatenate([g2[geom_mask[g1]], g1[geom_mask[g2]]])
+        return np.unique(partners[~geom_mask[partners]])
+
+    def contact_labels(self, geom_mask: np.ndarray, within: float = 0.0) -> tuple[str, ...]:
+        """Who touches the geoms where ``geom_mask`` is True, sorted: ``"link:<body>"`` (an arm link),
+        ``"gripper:<body>"`` (hand or finger), ``"held:<object>"`` (an object that the gripper touches too) or
+        ``"object:<object>"`` (another movable object, named by its root body as LIBERO names objects). Static
+        geometry (the table, fixtures) is left out: it holds the obstacle up, it does not push it.
+
+        With ``within > 0`` the robot and movable geoms closer than ``within`` (m) count too, not only those in
+        contact now: a fast hit can start and end between two control steps' contact lists.
+        """
+        partners = set(self.touching_geoms(geom_mask).tolist())
+        if within > 0.0:
+            partners |= self._geoms_near(geom_mask, within)
+        labels = set()
+        held_roots = None
+        m = self.model
+        for geom in partners:
+            body = int(m.geom_bodyid[geom])
+            if self.robot_geom[geom]:
+                labels.add(f"{'gripper' if self.gripper_geom[geom] else 'link'}:{self._body_names[body]}")
+            elif self._movable[body]:
+                root = int(m.body_rootid[body])
+                if held_roots is None:
+                    held_roots = set(m.body_rootid[m.geom_bodyid[self.touching_geoms(self.gripper_geom)]].tolist())
+                kind = "held" if root in held_roots else "object"
+                labels.add(f"{kind}:{self._body_names[root].removesuffix('_main')}")
+        return tuple(sorted(labels))
+
+    def _geoms_near(self, geom_mask: np.ndarray, within: float) -> set[int]:
+        """Robot and movable collision geoms (outside ``geom_mask``) closer than ``within`` to a masked geom."""
+        m, d = self.model, self.data
+        collides = (m.geom_contype | m.geom_conaffinity) > 0
+        others = np.flatnonzero(collides & ~geom_mask & (self.robot_geom | self._movable[m.geom_bodyid]))
+        targets = np.flatnonzero(geom_mask)
+        gap = (np.linalg.norm(d.geom_xpos[others][:, None] - d.geom_xpos[targets][None], axis=-1)
+               - m.geom_rbound[others][:, None] - m.geom_rbound[targets][None])
+        fromto = np.zeros(6)
+        near = set()
+        for i, j in zip(*np.nonzero(gap < within)):
+            if mujoco.mj_geomDistance(m, d, int(others[i]), int(targets[j]), within, fromto) < within:
+                near.add(int(others[i]))
+        return near
 
     def min_distance(self, geom_ids: np.ndarray, cap: float = 1.0) -> float:
         """Exact minimum distance between the robot's collision geoms and ``geom_ids`` (``cap`` if farther).
@@ -277,3 +323,11 @@ class Scene:
             dist = mujoco.mj_geomDistance(m, d, int(robot[i]), int(geom_ids[j]), best, fromto)
             best = min(best, dist)
         return float(best)
+
+
+def _movable_bodies(model: mujoco.MjModel) -> np.ndarray:
+    """``(nbody,)`` whether a body can move: it or one of its ancestors has a joint."""
+    movable = np.zeros(model.nbody, dtype=bool)
+    for b in range(1, model.nbody):  # parents come first
+        movable[b] = model.body_jntnum[b] > 0 or movable[model.body_parentid[b]]
+    return movable

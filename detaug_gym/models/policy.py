@@ -80,6 +80,8 @@ class FlowPolicy:
         self.label_mode, self.binarize_gripper = options.label_mode, options.binarize_gripper
         self._default_seed = options.seed
         self._queue: deque[np.ndarray] = deque()
+        self._plan: np.ndarray | None = None
+        self._plan_step = -1
         self._warned_suite = False
         self.generator = torch.Generator()
         self.reset(options.seed)
@@ -99,6 +101,7 @@ class FlowPolicy:
         """Clear the action queue and reseed the sampling noise; warns once when ``context`` (the episode's)
         names another suite than the checkpoint was trained on."""
         self._queue.clear()
+        self._plan, self._plan_step = None, -1
         suite = self.checkpoint.trained_on.get("suite")
         if context is not None and suite and context.suite != suite and not self._warned_suite:
             warnings.warn(f"{self.checkpoint.path} was trained on {suite} demos and now runs in {context.env_id}; "
@@ -113,9 +116,21 @@ class FlowPolicy:
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """Next env action (7,) float32; replans when the queue is empty."""
         if not self._queue:
-            chunk = self.env_actions(self.next_plan(obs))[: self.action_steps]
-            self._queue.extend(chunk)
+            self._plan, self._plan_step = self.next_plan(obs), -1
+            self._queue.extend(self.env_actions(self._plan)[: self.action_steps])
+        self._plan_step += 1
         return self._queue.popleft()
+
+    def belief(self) -> dict:
+        """What the policy expects of the action :meth:`act` returned last (empty before the first): the
+        plan's arm joints once that action is executed, ``planned_joint_pos`` (7,), and ``plan_age``, the
+        actions executed from the plan so far. Subclasses add what their selection knew (DetAug: the chosen
+        plan's predicted cost). The bench reads it at the first collision (``EpisodeRecord.collision_cause``)."""
+        if self._plan is None:
+            return {}
+        row = min(self._plan_step + 1, len(self._plan) - 1)
+        joints = self._plan[row, self.layout.key_slice("robot_joint_pos")]
+        return {"planned_joint_pos": [float(v) for v in joints], "plan_age": self._plan_step + 1}
 
     def next_plan(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """The plan (H, D) to execute from ``obs``; subclasses override this to select among candidates."""

@@ -285,6 +285,14 @@ class AegisPolicy:
                 "infeasible": sum(not d.feasible for d in self.diagnostics),
                 **({"base": inner()} if callable(inner) else {})}
 
+    def belief(self) -> dict:
+        """The wrapped policy's belief (its plan) and whether the filter changed the last action."""
+        inner = getattr(self.policy, "belief", None)
+        belief = dict(inner()) if callable(inner) else {}
+        if self.diagnostics:
+            belief["filter_active"] = self.diagnostics[-1].active
+        return belief
+
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         action, step = self.filter(self.policy.act(obs), obs)
         self.diagnostics.append(step)

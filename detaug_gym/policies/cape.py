@@ -120,6 +120,17 @@ class CapePolicy(FlowPolicy):
         return {"replans": len(self.diagnostics), "guided_replans": sum(d.guided for d in self.diagnostics),
                 "fresh_plans": sum(d.fresh for d in self.diagnostics)}
 
+    def belief(self) -> dict:
+        """:meth:`FlowPolicy.belief` plus whether the replan was guided and, with ``track_cost``, the
+        guided plan's sphere cost (``plan_cost``)."""
+        belief = super().belief()
+        if self.diagnostics:
+            last = self.diagnostics[-1]
+            belief["guided"] = last.guided
+            if np.isfinite(last.cost):
+                belief["plan_cost"] = last.cost
+        return belief
+
     def next_plan(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         cost = self.cost_function(obs)
         guidance = None if cost is None else Guidance(cost, self.guidance_scale, self.guidance_t_min)

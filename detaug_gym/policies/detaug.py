@@ -40,6 +40,7 @@ class ReplanDiagnostics:
     best_cost: float
     median_cost: float
     k: int
+    zero_share: float
 
 
 class DetAugPolicy(FlowPolicy):
@@ -97,6 +98,19 @@ class DetAugPolicy(FlowPolicy):
                 "selected_cost_max": float(np.max(best)) if best else 0.0,
                 "replans_with_cost": int(sum(c > 0.0 for c in best))}
 
+    def belief(self) -> dict:
+        """:meth:`FlowPolicy.belief` plus the replan's choice: the selected plan's predicted ``plan_cost``,
+        the ``zero_cost_share`` of the K candidates, ``candidates`` (K), the selected ``label`` and
+        ``label_change`` (its distance to the previous replan's label; None at the first replan)."""
+        belief = super().belief()
+        if not self.diagnostics:
+            return belief
+        last = self.diagnostics[-1]
+        change = (float(np.linalg.norm(last.label - self.diagnostics[-2].label)) if len(self.diagnostics) > 1
+                  else None)
+        return {**belief, "plan_cost": last.best_cost, "zero_cost_share": last.zero_share, "candidates": last.k,
+                "label": [float(v) for v in last.label], "label_change": change}
+
     # ------------------------------------------------------------------ selection
     def sample_labels(self, obs: Mapping[str, np.ndarray], k: int) -> np.ndarray:
         """(k, L) labels: rows of the current task's training labels (uniform, without replacement when
@@ -122,7 +136,8 @@ class DetAugPolicy(FlowPolicy):
         norms = np.zeros(k) if labels is None else np.linalg.norm(labels, axis=1)
         best = int(np.lexsort((norms, np.round(costs, 6)))[0])  # lowest cost, then least bent
         chosen = labels[best] if labels is not None else np.zeros(self.label_dim, np.float32)
-        self.diagnostics.append(ReplanDiagnostics(chosen, float(costs[best]), float(np.median(costs)), k))
+        self.diagnostics.append(ReplanDiagnostics(chosen, float(costs[best]), float(np.median(costs)), k,
+                                                  float(np.mean(costs <= 0.0))))
         if self.latch and labels is not None:
             self._latched = chosen
         return plans[best].numpy()
