@@ -35,7 +35,7 @@ import numpy as np
 import detaug_gym  # noqa: F401  (registers the env ids)
 from detaug_gym.actions import controller_settings
 from detaug_gym.config import build_parser, config_from_namespace
-from detaug_gym.data.dataset import OBSTACLE_PREFIX, DatasetWriter, Demo
+from detaug_gym.data.dataset import DatasetWriter, Demo, is_recorded
 from detaug_gym.policies import make_policy
 from detaug_gym.rollout import Hook, Step, rollout, until_done
 from detaug_gym.seeds import demo_seed
@@ -181,7 +181,7 @@ class DemoRecorder(Hook):
         self.steps.append(step)
 
     def demo(self, attrs: dict) -> Demo:
-        keys = [k for k in self.steps[0].obs if not k.startswith(OBSTACLE_PREFIX)]
+        keys = [k for k in self.steps[0].obs if is_recorded(k)]
         actions = np.asarray([s.action for s in self.steps], dtype=np.float32)
         sent = np.asarray([s.sent for s in self.steps], dtype=np.float32)
         dones = np.asarray([float(s.terminated) for s in self.steps], dtype=np.float32)

@@ -294,6 +294,7 @@ class CollisionAttribution(Hook):
     the obstacle), ``bodies`` (the contact labels), ``body`` (their kinds joined by ``+``: ``link``,
     ``gripper``, ``held_object``, ``object``; ``none`` when nothing was seen touching it), ``phase``,
     ``bent`` (whether DetAug's augmentation bends that part of a demo: a transit, not a window or margin),
+    ``robot_clearance`` (m, the env's exact robot-to-obstacle distance after that step),
     and from the belief ``plan_deviation`` (rad, largest joint difference between the planned and the
     executed arm configuration after that step) with everything else the policy reported (``plan_cost``,
     ``zero_cost_share``, ...).
@@ -324,9 +325,9 @@ class CollisionAttribution(Hook):
             self.first_touch = contact_step  # a hit between two steps' contact lists
         kinds = sorted({BODY_KINDS[b.split(":", 1)[0]] for b in bodies})
         self._cause = {"step": self.step, "contact_step": contact_step, "bodies": list(bodies),
-                       "body": "+".join(kinds) or "none"}
+                       "body": "+".join(kinds) or "none", "robot_clearance": float(step.info["min_clearance"])}
         belief = getattr(self.policy, "belief", None)
-        belief = dict(belief()) if callable(belief) else {}
+        belief = dict(belief(step.next_obs)) if callable(belief) else {}
         planned = belief.pop("planned_joint_pos", None)
         if planned is not None:
             executed = np.asarray(step.next_obs["robot_joint_pos"], np.float64)

@@ -110,6 +110,9 @@ def test_belief_reports_the_selected_plan_and_its_candidates(checkpoint):
     assert first["plan_age"] == 1 and first["label_change"] is None
     plan_row = policy._plan[1, policy.layout.key_slice("robot_joint_pos")]
     assert np.allclose(first["planned_joint_pos"], plan_row)
+    judged = policy.belief(obs)  # the scorer's view of a state inside the box
+    assert judged["executed_cost"] > 0 and judged["executed_clearance"] < 0
+    assert "executed_cost" not in policy.belief(checkpoint[1])  # no obstacle in view: nothing to judge
     policy.act(obs)
     assert policy.belief()["plan_age"] == 2
     policy.act(obs)  # a replan: a fresh label

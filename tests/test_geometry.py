@@ -329,19 +329,30 @@ def test_mvee_recovers_an_ellipsoid_from_its_surface():
 
 
 # ---------------------------------------------------------------------------------------------- held object
+def _bowl_points(centre, radius: float = 0.06, seed: int = 0) -> np.ndarray:
+    """(64, 3) surface samples of a bowl-sized cylinder (radius, 5 cm tall) standing at ``centre``."""
+    mesh = trimesh.creation.cylinder(radius=radius, height=0.05)
+    points, _ = trimesh.sample.sample_surface(mesh, 64, seed=seed)
+    return (points + centre).astype(np.float32)
+
+
 def test_held_object_is_found_only_with_closed_fingers_and_an_object_at_hand():
     from detaug_gym.geometry import held_object
 
     obs = _box_obs(np.array([0.0, 0.0, 1.0]), [0.03, 0.03, 0.08])
+    origins = np.array([[0.3, 0.065, 0.96], [0.6, 0.3, 0.9]])
     obs |= {"eef_pos": np.array([0.3, 0.0, 1.0]), "object_mask": np.ones(2, np.float32),
-            "object_poses": np.array([[0.3, 0.065, 0.96, 0, 0, 0, 1], [0.6, 0.3, 0.9, 0, 0, 0, 1]], np.float32)}
+            "object_poses": np.c_[origins, np.tile([0, 0, 0, 1], (2, 1))].astype(np.float32),
+            "object_points": np.stack([_bowl_points(o) for o in origins])}
     assert held_object(obs) is None  # fingers open (the helper's 0.08 m)
     obs["gripper_qpos"] = np.array([0.004, -0.004], np.float32)
-    offset, radius = held_object(obs)
-    np.testing.assert_allclose(offset, [0.0, 0.065, -0.04], atol=1e-6)
-    assert radius == pytest.approx(0.065, abs=1e-6)  # horizontal grip-to-origin distance: a rim-held bowl
+    points = held_object(obs)
+    np.testing.assert_allclose(points, obs["object_points"][0] - obs["eef_pos"], atol=1e-6)  # the nearer one
     obs["object_poses"][0, :3] = [0.6, 0.6, 0.9]  # nothing within reach
     assert held_object(obs) is None
+    del obs["object_points"]
+    with pytest.raises(KeyError, match="object_points"):
+        held_object(obs)
 
 
 def test_held_object_cost_catches_a_carry_that_the_robot_points_miss():
@@ -351,7 +362,8 @@ def test_held_object_cost_catches_a_carry_that_the_robot_points_miss():
     obs = _box_obs(np.array([0.0, 0.0, 1.0]), [0.03, 0.03, 0.08])
     obs |= {"eef_pos": np.array([0.3, -0.11, 1.0]), "object_mask": np.ones(1, np.float32),
             "gripper_qpos": np.array([0.004, -0.004], np.float32),
-            "object_poses": np.array([[0.3, -0.045, 0.96, 0, 0, 0, 1]], np.float32)}
+            "object_poses": np.array([[0.3, -0.045, 0.96, 0, 0, 0, 1]], np.float32),
+            "object_points": _bowl_points(np.array([0.3, -0.045, 0.985]))[None]}
     x = torch.linspace(0.3, -0.3, 30, dtype=torch.float64)
     beside = torch.stack([x, torch.full_like(x, -0.11), torch.full_like(x, 1.0)], -1)  # (T, 3)
     away = beside - torch.tensor([0.0, 0.3, 0.0], dtype=torch.float64)

@@ -67,3 +67,36 @@ def test_obstacle_sdf_and_costs_on_the_observation(libero):
     plans = q + torch.zeros(32, 50, 7, dtype=torch.float64)
     cost = plan_collision_cost(plans, obs)
     assert cost.shape == (32,) and torch.all(cost == 0)  # the start pose is clear of the obstacle
+
+
+def test_scorer_clearance_is_within_detaug_inflation_of_the_exact_one(libero):
+    """Near the obstacle the scorer (SDF at the robot's surface points) may see more room than MuJoCo's exact
+    distance, but never more than DetAug's ``inflate``: otherwise a plan that grazes the obstacle scores zero."""
+    from detaug_gym.geometry import robot_clearance
+    from detaug_gym.policies.options import DetAugOptions
+
+    env, obs, info = libero
+    scene = env.scene
+    obstacle = scene.obstacles[info["obstacle"]].geom_ids
+    start = env.get_state()
+    rng = np.random.default_rng(0)
+    errors = []
+    centre = obs["obstacle_pose"][:3].astype(np.float64)
+    try:
+        for _ in range(400):
+            q = obs["robot_joint_pos"] + rng.normal(0.0, 0.35, 7)
+            scene.data.qpos[scene.arm_qpos] = q
+            mujoco.mj_forward(scene.model, scene.data)
+            if np.linalg.norm(scene.eef_pose()[0] - centre) > 0.25:
+                continue
+            exact = scene.min_distance(obstacle)
+            if 0.0 < exact < 0.04:
+                now = env.observe()
+                sdf = obstacle_sdf(now)
+                errors.append(float(robot_clearance(torch.as_tensor(q), now, sdf)) - exact)
+    finally:
+        env.set_state(start)
+    assert len(errors) >= 10, f"only {len(errors)} near-obstacle samples"
+    errors = np.array(errors)
+    assert errors.max() < DetAugOptions().inflate, f"scorer saw up to {errors.max():.4f} m more room"
+    assert errors.min() > -0.02  # and it does not invent contact where there is 2 cm of room

@@ -30,6 +30,14 @@ import numpy as np
 from detaug_gym.rollout import Hook, Step, rollout
 
 OBSTACLE_PREFIX = "obstacle_"
+DERIVED_OBS = ("object_points",)  # rebuilt from the object poses and the scene: not worth storing per step
+
+
+def is_recorded(key: str) -> bool:
+    """Whether a dataset stores observation ``key``: not the obstacle's (demos are collected in free space)
+    and not :data:`DERIVED_OBS`."""
+    return not key.startswith(OBSTACLE_PREFIX) and key not in DERIVED_OBS
+
 # LIBERO demo observation keys -> ours. Image keys are skipped.
 LIBERO_OBS_KEYS = {
     "joint_states": "robot_joint_pos",
@@ -282,7 +290,7 @@ class DatasetWriter:
         group.attrs["num_samples"] = len(demo)
         obs = group.create_group("obs")
         for key, value in demo.obs.items():
-            if not key.startswith(OBSTACLE_PREFIX):
+            if is_recorded(key):
                 obs.create_dataset(key, data=np.asarray(value, dtype=np.float32), compression="gzip")
         group.create_dataset("states", data=np.asarray(demo.states, dtype=np.float64), compression="gzip")
         group.create_dataset("gripper_command", data=np.asarray(demo.gripper_command, dtype=np.float32))

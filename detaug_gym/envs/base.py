@@ -25,7 +25,7 @@ from detaug_gym.envs.obstacles import (
     raise_pedestal,
 )
 from detaug_gym.envs.placement import Placement, PlacementProblem, place_obstacle
-from detaug_gym.envs.scene import SETTLE_ACTION, Scene
+from detaug_gym.envs.scene import OBJECT_POINTS, SETTLE_ACTION, Scene
 from detaug_gym.envs.suites import SuiteSpec, TaskSpec
 from detaug_gym.seeds import episode_rng
 
@@ -63,7 +63,8 @@ class ObstacleManipulationEnv(gym.Env):
     Observation (``spaces.Dict``, float32):
         ``robot_joint_pos`` (7,), ``robot_joint_vel`` (7,), ``gripper_qpos`` (2,), ``eef_pos`` (3,),
         ``eef_quat`` (4,) xyzw, ``object_poses`` (S, 7) pos + xyzw quat of the task-relevant objects,
-        ``object_mask`` (S,), ``task_id`` (T,) one-hot, ``obstacle_points`` (256, 3) world-frame surface
+        ``object_mask`` (S,), ``object_points`` (S, 64, 3) world-frame surface samples of those objects (zeros
+        for a slot without a body), ``task_id`` (T,) one-hot, ``obstacle_points`` (256, 3) world-frame surface
         samples, ``obstacle_pose`` (7,), ``obstacle_size`` (3,) half-extents, ``obstacle_mask`` (1,).
         Obstacle entries are zero (mask 0) without an obstacle.
     Action: ``Box(-1, 1, (7,))``: OSC_POSE delta (scales in :mod:`detaug_gym.actions`) and the gripper
@@ -118,6 +119,7 @@ class ObstacleManipulationEnv(gym.Env):
             "eef_quat": _box(4, -1.0, 1.0),
             "object_poses": _box((object_slots, 7)),
             "object_mask": _box(object_slots, 0.0, 1.0),
+            "object_points": _box((object_slots, OBJECT_POINTS, 3)),
             "task_id": _box(num_tasks, 0.0, 1.0),
             "obstacle_points": _box((OBSTACLE_POINTS, 3)),
             "obstacle_pose": _box(7),
@@ -394,6 +396,7 @@ class ObstacleManipulationEnv(gym.Env):
             "eef_quat": eef_quat,
             "object_poses": poses,
             "object_mask": mask,
+            "object_points": scene.tracked_points(self.object_slots),
             "task_id": task_id,
             "obstacle_points": np.zeros((OBSTACLE_POINTS, 3)),
             "obstacle_pose": np.zeros(7),

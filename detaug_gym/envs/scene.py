@@ -23,11 +23,13 @@ from detaug_gym.envs.obstacles import (
     pedestal_handles,
 )
 from detaug_gym.envs.placement import Footprint
+from detaug_gym.geometry.meshes import body_collision_mesh, sample_surface
 
 ARM_JOINTS = tuple(f"robot0_joint{i}" for i in range(1, 8))
 GRIPPER_JOINTS = ("gripper0_finger_joint1", "gripper0_finger_joint2")
 EEF_SITE = "gripper0_grip_site"
 ROBOT_PREFIXES = ("robot0_", "gripper0_")
+OBJECT_POINTS = 64  # surface samples per tracked object in the observation (``object_points``)
 SETTLE_ACTION = np.array([0, 0, 0, 0, 0, 0, -1], dtype=np.float64)
 
 
@@ -85,6 +87,7 @@ class Scene:
         self.pedestals: dict[str, PedestalHandle] = pedestal_handles(m)
         self.parked = parked and bool(self.obstacles)
         self._tracked_refs = [self._pose_ref(name) for name in tracked]
+        self._tracked_local = [self._local_points(ref) for ref in self._tracked_refs]
         # Snapshot of the compiled model's static poses; fixtures are re-drawn per episode on top of it.
         self.nominal_body_pos = m.body_pos.copy()
         self.nominal_body_quat = m.body_quat.copy()
@@ -108,6 +111,18 @@ class Scene:
         if sid >= 0:
             return "site", sid
         raise KeyError(f"{name!r} is neither a body nor a site of this scene")
+
+    def _local_points(self, ref: tuple[str, int]) -> np.ndarray | None:
+        """:data:`OBJECT_POINTS` surface samples of a tracked body's collision geometry (with its subtree) in
+        its frame; None for a site or a body without collision geometry."""
+        kind, idx = ref
+        if kind != "body":
+            return None
+        try:
+            mesh = body_collision_mesh(self.model, idx, include_children=True)
+        except ValueError:
+            return None
+        return sample_surface(mesh, OBJECT_POINTS, seed=0)
 
     def body_id(self, name: str) -> int:
         kind, idx = self._pose_ref(name)
@@ -185,6 +200,17 @@ class Scene:
             poses[i] = self._pose(ref)
             mask[i] = 1.0
         return poses, mask
+
+    def tracked_points(self, slots: int) -> np.ndarray:
+        """World-frame surface samples of the tracked objects, ``(slots, OBJECT_POINTS, 3)``; zeros for empty
+        slots and for tracked sites (regions without a body)."""
+        points = np.zeros((slots, OBJECT_POINTS, 3))
+        d = self.data
+        for i, (ref, local) in enumerate(zip(self._tracked_refs[:slots], self._tracked_local)):
+            if local is not None:
+                idx = ref[1]
+                points[i] = local @ d.xmat[idx].reshape(3, 3).T + d.xpos[idx]
+        return points
 
     def subtree_bodies(self, root: int) -> np.ndarray:
         """Ids of ``root`` and all its descendants."""

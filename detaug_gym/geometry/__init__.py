@@ -28,7 +28,7 @@ from typing import Any
 
 _EXPORTS = {
     "costs": ("COST_KINDS", "clearance_cost", "held_object", "held_object_cost", "penetration_cost",
-              "plan_collision_cost", "sphere_cost", "surface_hinge_cost"),
+              "plan_collision_cost", "robot_clearance", "sphere_cost", "surface_hinge_cost"),
     "ellipsoid": ("Ellipsoid", "min_volume_ellipsoid"),
     "kinematics": ("KinematicsResult", "PandaKinematics", "panda_model"),
     "obstacle_view": ("SHAPES", "CachedShape", "ShapeCache", "has_obstacle", "obstacle_frame",

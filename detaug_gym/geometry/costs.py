@@ -9,8 +9,8 @@ so in the joint plan):
 - ``clearance``: sum of ``max(0, margin - sdf)``; also penalises near misses (the paper's ablation).
 - ``spheres``: sum of ``max(0, margin + r - sdf(centre))`` over the end-effector spheres (CAPE's guidance).
 
-:func:`held_object_cost` adds the object in the hand, which the robot's points do not cover: a carried bowl
-can push the obstacle while the arm stays clear of it.
+:func:`held_object_cost` adds the object in the hand (its observed surface points), which the robot's
+points do not cover: a carried bowl can push the obstacle while the arm stays clear of it.
 
 Shapes: ``B`` plans (DetAug's K candidates), ``T`` plan steps, ``P`` robot points, ``S`` spheres.
 """
@@ -149,40 +149,55 @@ def plan_collision_cost(joint_plan: torch.Tensor, obs: dict[str, np.ndarray] | N
     return surface_hinge_cost(fk, robot.points, sdf, margin).sum(-1)
 
 
+def robot_clearance(joint_pos: torch.Tensor, obs: dict[str, np.ndarray], sdf: ObstacleSDF | None = None,
+                    robot: RobotGeometry | None = None) -> torch.Tensor:
+    """The scorer's distance (m) from the robot to the observed obstacle: the smallest SDF value over the
+    robot's surface points, joint positions ``(..., 7)`` -> ``(...)`` (negative: a point is inside). What
+    :func:`plan_collision_cost` sees of a configuration; compare it with the env's exact ``min_clearance``."""
+    sdf = obstacle_sdf(obs) if sdf is None else sdf
+    robot = _aligned_default(obs) if robot is None else robot
+    fingers = torch.as_tensor(np.asarray(obs["gripper_qpos"], np.float64)) if "gripper_qpos" in obs else None
+    joint_pos = torch.as_tensor(joint_pos, dtype=torch.float64)
+    return sdf(robot.surface_points(joint_pos, fingers)).amin(dim=-1)
+
+
 HELD_REACH = 0.10  # m: an object whose origin is this close to the grip site, with the fingers closed, is held
 HELD_WIDTH = 0.06  # m: finger opening below which the hand counts as closed (open: ~0.08)
-HELD_RADIUS = (0.03, 0.09)  # m: bounds of the held object's sphere
 
 
-def held_object(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, float] | None:
-    """The object in the hand at this observation, as ``(offset from the grip site (3,), sphere radius)``.
+def held_object(obs: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The object in the hand at this observation, as its surface points relative to the grip site ``(N, 3)``.
 
     Held = fingers closed (opening < :data:`HELD_WIDTH`) and the nearest present object's origin within
-    :data:`HELD_REACH` of the grip site. The observation has no object sizes, so the sphere's radius is the
-    horizontal distance from the grip site to the object's origin (a rim-held bowl: its rim radius), clipped to
-    :data:`HELD_RADIUS`. ``None`` when nothing is held.
+    :data:`HELD_REACH` of the grip site; its points are the observation's ``object_points`` of that slot.
+    ``None`` when nothing is held.
     """
     if "object_poses" not in obs or "gripper_qpos" not in obs:
         return None
     fingers = np.asarray(obs["gripper_qpos"], np.float64).reshape(-1)
     if abs(fingers[0] - fingers[-1]) >= HELD_WIDTH:
         return None
+    if "object_points" not in obs:
+        raise KeyError("held_object reads 'object_points' (the tracked objects' surface samples) from the "
+                       "observation; every env of this package provides it")
     eef = np.asarray(obs["eef_pos"], np.float64)
     poses = np.asarray(obs["object_poses"], np.float64).reshape(-1, 7)
+    points = np.asarray(obs["object_points"], np.float64).reshape(len(poses), -1, 3)
     mask = np.asarray(obs.get("object_mask", np.ones(len(poses))), np.float64).reshape(-1) > 0.5
+    mask &= np.abs(points).sum(axis=(1, 2)) > 0  # slots without a body (a target region) hold nothing
     if not mask.any():
         return None
-    offsets = poses[mask, :3] - eef
-    nearest = int(np.argmin(np.linalg.norm(offsets, axis=1)))
-    offset = offsets[nearest]
-    if np.linalg.norm(offset) > HELD_REACH:
+    slots = np.flatnonzero(mask)
+    distance = np.linalg.norm(poses[slots, :3] - eef, axis=1)
+    nearest = int(slots[np.argmin(distance)])
+    if distance.min() > HELD_REACH:
         return None
-    return offset, float(np.clip(np.linalg.norm(offset[:2]), *HELD_RADIUS))
+    return points[nearest] - eef
 
 
 def held_object_cost(eef_plan: torch.Tensor, finger_plan: torch.Tensor, obs: dict[str, np.ndarray],
                      sdf: SDF | None = None, kind: str = "penetration", margin: float | None = None) -> torch.Tensor:
-    """Cost of the held object (a sphere carried rigidly with the grip site) along each plan.
+    """Cost of the held object (its surface points carried rigidly with the grip site) along each plan.
 
     Args:
         eef_plan: ``(..., T, 3)`` planned grip-site positions.
@@ -192,7 +207,8 @@ def held_object_cost(eef_plan: torch.Tensor, finger_plan: torch.Tensor, obs: dic
         kind, margin: as :func:`plan_collision_cost` (``spheres`` is treated like ``clearance``).
 
     Returns:
-        ``(...)`` sum over plan steps of ``max(0, margin + r - sdf(centre))``; zeros when nothing is held.
+        ``(...)`` sum over plan steps and the object's points of ``max(0, margin - sdf)``; zeros when nothing
+        is held.
     """
     if kind not in COST_KINDS:
         raise ValueError(f"unknown cost kind {kind!r}; valid: {', '.join(COST_KINDS)}")
@@ -200,13 +216,12 @@ def held_object_cost(eef_plan: torch.Tensor, finger_plan: torch.Tensor, obs: dic
     held = held_object(obs)
     if held is None:
         return eef_plan.new_zeros(eef_plan.shape[:-2])
-    offset, radius = held
     margin = DEFAULT_MARGIN[kind] if margin is None else float(margin)
     sdf = obstacle_sdf(obs) if sdf is None else sdf
-    centres = eef_plan + eef_plan.new_tensor(offset)  # (..., T, 3): the grasp keeps the offset
+    points = eef_plan[..., None, :] + eef_plan.new_tensor(held)  # (..., T, N, 3): the grasp keeps the offsets
     finger_plan = torch.as_tensor(finger_plan, dtype=eef_plan.dtype)
     closed = ((finger_plan[..., 0] - finger_plan[..., -1]).abs() < HELD_WIDTH).to(eef_plan.dtype)
-    return (torch.relu(margin + radius - sdf(centres)) * closed).sum(-1)
+    return (torch.relu(margin - sdf(points)).sum(-1) * closed).sum(-1)
 
 
 def _aligned_default(obs: dict[str, np.ndarray]) -> RobotGeometry:

@@ -20,6 +20,7 @@ import torch
 from detaug_gym.geometry.kinematics import KinematicsResult, PandaKinematics, panda_model
 from detaug_gym.geometry.meshes import body_collision_mesh, sample_surface
 
+ROBOT_POINTS = 1000  # surface samples of the default robot geometry (see RobotGeometry.from_model)
 HAND_LINK = "gripper0_right_gripper"
 # Default end-effector spheres in the hand frame (z = tool axis, x = finger travel): two over the hand's
 # 0.2 m wide palm, one over the fingers. With r = 0.065 m (CAPE uses r ~ 0.06-0.08 m) they cover every
@@ -158,17 +159,18 @@ class RobotGeometry:
         self.spheres = spheres
 
     @classmethod
-    def from_model(cls, model: mujoco.MjModel, num_points: int = 300, seed: int = 0) -> RobotGeometry:
+    def from_model(cls, model: mujoco.MjModel, num_points: int = ROBOT_POINTS, seed: int = 0) -> RobotGeometry:
         """FK, ``num_points`` surface samples (fixed ``seed``) and the default end-effector spheres.
 
-        300 points over the Panda's ~0.9 m^2 of collision surface leave ~5 cm between neighbours; raise
-        ``num_points`` where grazing contacts must register (the culled cost grows with near points only).
+        :data:`ROBOT_POINTS` (1000) over the Panda's ~0.9 m^2 of collision surface leave ~3 cm between
+        neighbours; at 300 (~5 cm) the scorer read grazing contacts as 1-2 cm of clearance
+        (``benchmarks/scorer_fidelity.py``). The culled cost grows with near points only.
         """
         kin = PandaKinematics.from_model(model)
         return cls(kin, RobotSurfacePoints.from_model(model, kin, num_points, seed), RobotSpheres.end_effector(kin))
 
     @classmethod
-    def panda(cls, num_points: int = 300, seed: int = 0) -> RobotGeometry:
+    def panda(cls, num_points: int = ROBOT_POINTS, seed: int = 0) -> RobotGeometry:
         """robosuite's Panda with its base at the world origin (see :meth:`aligned_to`)."""
         return cls.from_model(panda_model(), num_points, seed)
 

@@ -121,11 +121,12 @@ class FlowPolicy:
         self._plan_step += 1
         return self._queue.popleft()
 
-    def belief(self) -> dict:
+    def belief(self, obs: Mapping[str, np.ndarray] | None = None) -> dict:
         """What the policy expects of the action :meth:`act` returned last (empty before the first): the
         plan's arm joints once that action is executed, ``planned_joint_pos`` (7,), and ``plan_age``, the
         actions executed from the plan so far. Subclasses add what their selection knew (DetAug: the chosen
-        plan's predicted cost). The bench reads it at the first collision (``EpisodeRecord.collision_cause``)."""
+        plan's predicted cost) and, given ``obs`` (the observation that action led to), how their own model
+        judges the state reached. The bench reads it at the first collision (``EpisodeRecord.collision_cause``)."""
         if self._plan is None:
             return {}
         row = min(self._plan_step + 1, len(self._plan) - 1)

@@ -285,10 +285,10 @@ class AegisPolicy:
                 "infeasible": sum(not d.feasible for d in self.diagnostics),
                 **({"base": inner()} if callable(inner) else {})}
 
-    def belief(self) -> dict:
+    def belief(self, obs: Mapping[str, np.ndarray] | None = None) -> dict:
         """The wrapped policy's belief (its plan) and whether the filter changed the last action."""
         inner = getattr(self.policy, "belief", None)
-        belief = dict(inner()) if callable(inner) else {}
+        belief = dict(inner(obs)) if callable(inner) else {}
         if self.diagnostics:
             belief["filter_active"] = self.diagnostics[-1].active
         return belief

@@ -5,8 +5,9 @@ A policy drives one environment. The bench (the only rollout loop in the project
     policy.reset(seed=seed, context=context)   # at the start of every episode
     action = policy.act(obs)                   # once per env step, obs is the env's Dict observation
     policy.episode_summary()                   # optional: a JSON-able dict for the episode's record
-    policy.belief()                            # optional: what it expected of its last action (a plan's
-                                               # joints, a predicted cost), read at the first collision
+    policy.belief(obs)                         # optional: what it expected of its last action (a plan's
+                                               # joints, a predicted cost) and how it judges obs, the state
+                                               # that action led to; read at the first collision
 
 ``context`` is the :class:`~detaug_gym.rollout.EpisodeContext` (env id, suite, level, task index, key and
 instruction); a policy may ignore it, and one whose ``reset`` takes only ``seed`` still works.

@@ -120,10 +120,10 @@ class CapePolicy(FlowPolicy):
         return {"replans": len(self.diagnostics), "guided_replans": sum(d.guided for d in self.diagnostics),
                 "fresh_plans": sum(d.fresh for d in self.diagnostics)}
 
-    def belief(self) -> dict:
+    def belief(self, obs: Mapping[str, np.ndarray] | None = None) -> dict:
         """:meth:`FlowPolicy.belief` plus whether the replan was guided and, with ``track_cost``, the
         guided plan's sphere cost (``plan_cost``)."""
-        belief = super().belief()
+        belief = super().belief(obs)
         if self.diagnostics:
             last = self.diagnostics[-1]
             belief["guided"] = last.guided

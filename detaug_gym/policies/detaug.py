@@ -7,10 +7,11 @@ into the observed obstacle (``detaug_gym.geometry``), and the best plan is execu
 plans (e.g. no obstacle in view, all costs zero) the least bent one (smallest label norm) wins, so free
 space is crossed the way the unaugmented demos cross it.
 
-The score also covers the object in the hand (``held_object``, default on): a sphere carried with the grip
-site while the plan's fingers stay closed. The paper scores the robot only; in the bench half of the
-obstacle collisions came without any robot contact, from the carried bowl. ``held_object=False`` is the
-paper's score.
+The score also covers the object in the hand (``held_object``, default on): its observed surface points,
+carried with the grip site while the plan's fingers stay closed. The paper scores the robot only; in the
+bench half of the obstacle collisions came without any robot contact, from the carried bowl. The obstacle is
+inflated by ``inflate`` (1.5 cm) before penetration is scored, the measured error of the scorer's geometry
+(docs/detaug.md). ``held_object=False, inflate=0`` is the paper's score.
 
 Options reproduce the paper's ablations: ``k``, ``latch`` (keep the first choice for the episode),
 ``labels="zero"`` (K samples with the unbent label), ``cost="clearance"``, and the selection-vs-guidance
@@ -56,6 +57,8 @@ class DetAugPolicy(FlowPolicy):
         mode: one of :data:`~detaug_gym.policies.options.MODES` (selection vs guidance ablation).
         guidance_scale, guidance_t_min: lambda and chi of the guidance variants.
         held_object: also score the object in the hand (:func:`detaug_gym.geometry.held_object_cost`).
+        inflate: metres the obstacle is inflated by for the penetration score (the scorer's model error;
+            0 and ``held_object=False`` together are the paper's score).
         action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
 
     Every option, its type and its range are :class:`~detaug_gym.policies.options.DetAugOptions`.
@@ -66,10 +69,11 @@ class DetAugPolicy(FlowPolicy):
     def __init__(self, suite: str = "spatial", checkpoint: str | None = None, k: int = 32, latch: bool = False,
                  labels: str = "random", cost: str = "penetration", mode: str = "select",
                  guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,
-                 **options) -> None:
+                 inflate: float = 0.015, **options) -> None:
         opts = DetAugOptions.from_kwargs(suite=suite, checkpoint=checkpoint, k=k, latch=latch, labels=labels,
                                          cost=cost, mode=mode, guidance_scale=guidance_scale,
-                                         guidance_t_min=guidance_t_min, held_object=held_object, **options)
+                                         guidance_t_min=guidance_t_min, held_object=held_object, inflate=inflate,
+                                         **options)
         ckpt = load_checkpoint(opts.checkpoint or zoo_dir("detaug", opts.suite))
         if not ckpt.network.config.dit.label_dim:
             raise ValueError(f"{ckpt.path} was trained without labels ({ckpt.method!r}); DetAug needs a "
@@ -80,7 +84,7 @@ class DetAugPolicy(FlowPolicy):
         self.k, self.latch, self.label_source, self.cost_kind, self.mode = (opts.k, opts.latch, opts.labels,
                                                                             opts.cost, opts.mode)
         self.guidance_scale, self.guidance_t_min = opts.guidance_scale, opts.guidance_t_min
-        self.held_object = opts.held_object
+        self.held_object, self.inflate = opts.held_object, opts.inflate
         self.diagnostics: list[ReplanDiagnostics] = []
         self._latched: np.ndarray | None = None
         self._rng = np.random.default_rng()
@@ -98,18 +102,37 @@ class DetAugPolicy(FlowPolicy):
                 "selected_cost_max": float(np.max(best)) if best else 0.0,
                 "replans_with_cost": int(sum(c > 0.0 for c in best))}
 
-    def belief(self) -> dict:
+    def belief(self, obs: Mapping[str, np.ndarray] | None = None) -> dict:
         """:meth:`FlowPolicy.belief` plus the replan's choice: the selected plan's predicted ``plan_cost``,
         the ``zero_cost_share`` of the K candidates, ``candidates`` (K), the selected ``label`` and
-        ``label_change`` (its distance to the previous replan's label; None at the first replan)."""
-        belief = super().belief()
+        ``label_change`` (its distance to the previous replan's label; None at the first replan). Given
+        ``obs`` with an obstacle, also how the scorer judges the state reached: ``executed_cost`` (its score
+        of that one configuration, robot and held object) and ``executed_clearance`` (m, its robot-to-obstacle
+        distance, :func:`~detaug_gym.geometry.robot_clearance`)."""
+        belief = super().belief(obs)
         if not self.diagnostics:
             return belief
         last = self.diagnostics[-1]
         change = (float(np.linalg.norm(last.label - self.diagnostics[-2].label)) if len(self.diagnostics) > 1
                   else None)
-        return {**belief, "plan_cost": last.best_cost, "zero_cost_share": last.zero_share, "candidates": last.k,
-                "label": [float(v) for v in last.label], "label_change": change}
+        belief.update(plan_cost=last.best_cost, zero_cost_share=last.zero_share, candidates=last.k,
+                      label=[float(v) for v in last.label], label_change=change)
+        if obs is not None and has_obstacle(obs):
+            belief.update(self._judge(obs))
+        return belief
+
+    def _judge(self, obs: Mapping[str, np.ndarray]) -> dict:
+        from detaug_gym.geometry import obstacle_sdf, robot_clearance
+
+        observation = dict(obs)
+        single = {k: np.asarray(v)[None] for k, v in observation.items()}
+        state = torch.from_numpy(self.layout.state_vector(single)).double()
+        row = torch.cat([state, state.new_zeros(1, self.layout.action_dim)], dim=-1)[:, None]  # (1, 1, D)
+        with torch.no_grad():
+            cost = float(self._plan_cost(row, observation)[0])
+            clearance = float(robot_clearance(state[0, self.layout.key_slice("robot_joint_pos")], observation,
+                                              obstacle_sdf(observation)))
+        return {"executed_cost": cost, "executed_clearance": clearance}
 
     # ------------------------------------------------------------------ selection
     def sample_labels(self, obs: Mapping[str, np.ndarray], k: int) -> np.ndarray:
@@ -154,12 +177,13 @@ class DetAugPolicy(FlowPolicy):
         from detaug_gym.geometry import held_object_cost, obstacle_sdf, plan_collision_cost
 
         sdf = obstacle_sdf(obs)
+        margin = self.inflate if self.cost_kind == "penetration" else None
         cost = plan_collision_cost(plans[..., self.layout.key_slice("robot_joint_pos")], obs, kind=self.cost_kind,
-                                   sdf=sdf)
+                                   sdf=sdf, margin=margin)
         if self.held_object:
             cost = cost + held_object_cost(plans[..., self.layout.key_slice("eef_pos")],
                                            plans[..., self.layout.key_slice("gripper_qpos")], obs, sdf,
-                                           kind=self.cost_kind)
+                                           kind=self.cost_kind, margin=margin)
         return cost
 
     def _guidance(self, obs: Mapping[str, np.ndarray]) -> Guidance | None:

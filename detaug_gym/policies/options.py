@@ -164,11 +164,17 @@ class DetAugOptions(FlowOptions):
     guidance_t_min: float = 0.8
     """chi, guidance acts at flow times t >= chi (in [0, 1])."""
     held_object: bool = True
-    """Also score the object in the hand (a sphere carried with the grip site); false is the paper's score."""
+    """Also score the object in the hand (its observed surface points, carried with the grip site); false is
+    the paper's score."""
+    inflate: float = 0.015
+    """Metres the obstacle is inflated by before penetration is scored (>= 0): the scorer's measured model
+    error (benchmarks/scorer_fidelity.py); 0 is the paper's score. Penetration-only still: a plan that stays
+    this far off costs nothing, however close it passes beyond that."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _require(self.k >= 1, f"k must be >= 1, got {self.k}")
+        _require(self.inflate >= 0.0, f"inflate must be >= 0 (metres), got {self.inflate}")
         _check_guidance(self.guidance_scale, self.guidance_t_min)
 
 
