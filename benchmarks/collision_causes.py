@@ -72,14 +72,17 @@ def main() -> None:
     for phase, n in Counter(c.get("phase", "unattributed") for c in causes).most_common():
         print(f"| {phase} | {n} |")
     per_task = Counter((r["task"], r["collision"]) for r in rows)
-    print("\ncollisions per task: " + ", ".join(f"task {t}: {per_task[(t, True)]}/{per_task[(t, True)] + per_task[(t, False)]}"
-                                               for t in sorted({r["task"] for r in rows})))
+    tasks = sorted({r["task"] for r in rows})
+    print("\ncollisions per task: " + ", ".join(
+        f"task {t}: {per_task[(t, True)]}/{per_task[(t, True)] + per_task[(t, False)]}" for t in tasks))
 
     def stat(key: str, pick=lambda c: True) -> str:
         values = np.array([c[key] for c in causes if c.get(key) is not None and pick(c)], float)
         return "n/a" if not values.size else f"median {np.median(values):.3f}, max {values.max():.3f} (n={values.size})"
 
-    robot = lambda c: bool(set(c.get("body", "").split("+")) & {"link", "gripper"})
+    def robot(c):
+        return bool(set(c.get("body", "").split("+")) & {"link", "gripper"})
+
     print(f"plan_deviation (rad): {stat('plan_deviation')}")
     gaps = [c["executed_clearance"] - c["robot_clearance"] for c in causes
             if robot(c) and c.get("executed_clearance") is not None]

@@ -9,8 +9,8 @@ policy with the seed and the :class:`EpisodeContext`, then per step ``action = p
 metrics), until ``stop(step)`` (default: terminated or truncated). Only this module and ``detaug_gym/envs/``
 call ``env.step``.
 
-:func:`run_episode` is the bench's episode: a metrics hook, a collision attribution, the policy's per-episode summary and an
-:class:`EpisodeRecord` (one JSON line); it never raises.
+:func:`run_episode` is the bench's episode: a metrics hook, a collision attribution, the policy's per-episode
+summary and an :class:`EpisodeRecord` (one JSON line); it never raises.
 """
 
 from __future__ import annotations

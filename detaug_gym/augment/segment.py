@@ -26,7 +26,6 @@ import numpy as np
 
 from detaug_gym.actions import CONTROL_DT
 
-
 PHASES = ("approach", "grasp", "carry", "release", "retreat")
 
 

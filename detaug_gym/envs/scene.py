@@ -80,7 +80,8 @@ class Scene:
         robot_body = np.array([name.startswith(ROBOT_PREFIXES) for name in body_names])
         self.robot_geom = robot_body[m.geom_bodyid] & ((m.geom_contype | m.geom_conaffinity) > 0)
         self.robot_geom_ids = np.flatnonzero(self.robot_geom)
-        self.gripper_geom = self.robot_geom & np.array([name.startswith("gripper0_") for name in body_names])[m.geom_bodyid]
+        gripper_body = np.array([name.startswith("gripper0_") for name in body_names])
+        self.gripper_geom = self.robot_geom & gripper_body[m.geom_bodyid]
         self._body_names = body_names
         self._movable = _movable_bodies(m)
         self.obstacles: dict[str, ObstacleHandle] = obstacle_handles(m, obstacle_bodies) if obstacle_bodies else {}
