@@ -42,18 +42,18 @@ import ast
 import json
 import os
 import re
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Literal
 
 from tqdm import tqdm
 
+from detaug_gym.backends import run_jobs
 from detaug_gym.config import build_parser as config_parser
 from detaug_gym.config import config_from_namespace
 from detaug_gym.envs.suites import NUM_INIT_STATES, SUITES, get_suite, parse_level
 from detaug_gym.manifest import check_manifest, method_checkpoints, write_manifest
+from detaug_gym.policies.options import check_device
 from detaug_gym.report import read_records, record_key, repair_log, write_report
 from detaug_gym.rollout import EpisodeKey, EpisodeRecord, run_episode
 from detaug_gym.seeds import bench_episode_seed
@@ -77,9 +77,16 @@ class BenchConfig:
     seeds: list[int] = field(default_factory=lambda: [0])
     """Run seeds, each its own set of episodes (episode seeds derive from it); tables show mean ± std over them."""
     workers: int = 1
-    """Parallel worker processes."""
+    """Parallel workers: processes (--backend local) or Ray actors (--backend ray)."""
     threads: int = 1
     """Torch threads per worker."""
+    device: str = "cpu"
+    """Torch device of the flow policies' networks: cpu, cuda, cuda:N or auto (a method option device=... wins)."""
+    backend: Literal["local", "ray"] = "local"
+    """local (processes on this machine) or ray (Ray actors, local or on a cluster; pip install -e ".[ray]")."""
+    address: str | None = None
+    """--backend ray: none (start a private local Ray instance with --workers x --threads CPUs), auto or HOST:PORT
+    (join a running cluster; detaug_gym installed on every node)."""
     out: str = "results/default"
     """Output folder (rerun the same command to resume)."""
     env_kwargs: list[str] = field(default_factory=list)
@@ -109,6 +116,9 @@ class BenchConfig:
         if self.scenarios == "official" and self.episodes > NUM_INIT_STATES:
             raise ValueError(f"--episodes counts episodes per task with --scenarios official; SafeLIBERO has "
                              f"{NUM_INIT_STATES} per task and level, got {self.episodes}")
+        check_device(self.device)
+        if self.address is not None and self.backend != "ray":
+            raise ValueError("--address is read by --backend ray only")
         if self.safelibero_root is not None and self.scenarios != "official":
             raise ValueError("--safelibero-root is read by --scenarios official only")
         for name in ("methods", "suites", "levels", "seeds"):
@@ -157,6 +167,7 @@ class Job:
     level: str
     run_seed: int = 0
     threads: int = 1
+    device: str = "cpu"
     env_kwargs: tuple[tuple[str, object], ...] = ()
     video: str | None = None  # mp4 path to write
     video_failures: bool = False  # render, keep the video only if the episode fails (unless ``keep_video``)
@@ -329,24 +340,23 @@ def _run_job(job: Job) -> dict:
     import torch
 
     import detaug_gym  # noqa: F401
-    from detaug_gym.policies import make_policy
+    from detaug_gym.policies import make_policy, option_names
 
     torch.set_num_threads(job.threads)  # torch's worker threads stall when several processes share the cores
     render = job.video is not None
     env_key = ("env", job.key.env_id, job.env_kwargs, render)
-    pol_key = ("policy", job.key.method, job.suite)
+    pol_key = ("policy", job.key.method, job.suite, job.device)
     try:
         if env_key not in _CACHE:
             _CACHE[env_key] = gym.make(job.key.env_id, **dict(job.env_kwargs),
                                        **({"render_mode": "rgb_array"} if render else {}))
         if pol_key not in _CACHE:
             name, options = parse_method(job.key.method)
+            if "device" in option_names(name, options):
+                options.setdefault("device", job.device)
             _CACHE[pol_key] = make_policy(name, suite=job.suite, **options)
     except Exception as exc:  # construction errors are recorded like episode errors
-        rec = EpisodeRecord(job.key.method, job.key.env_id, job.suite, job.level, job.key.task,
-                            job.key.episode, job.key.seed, run_seed=job.run_seed,
-                            error=f"{type(exc).__name__}: {exc}")
-        return rec.to_json()
+        return error_record(job, f"{type(exc).__name__}: {exc}")
     hooks = []
     if render:
         from detaug_gym.video import VideoRecorder
@@ -359,6 +369,12 @@ def _run_job(job: Job) -> dict:
     if record.termination == "error":
         _CACHE.pop(env_key).close()  # a broken simulator is rebuilt for the next episode
     return record.to_json()
+
+
+def error_record(job: Job, error: str) -> dict:
+    """The JSON record of an episode that could not run (counted as an error, retried by a rerun)."""
+    return EpisodeRecord(job.key.method, job.key.env_id, job.suite, job.level, job.key.task, job.key.episode,
+                         job.key.seed, run_seed=job.run_seed, error=error).to_json()
 
 
 def close_cached() -> None:
@@ -397,6 +413,13 @@ def run(cfg: BenchConfig) -> str:
             raise SystemExit("--scenarios official: SafeLIBERO has L1 and L2 only; drop --levels free")
     check_methods(methods, suites)
     check_env_kwargs(cells, cfg)
+    if cfg.device != "cpu":  # fail here, not in every episode (imports torch only then)
+        from detaug_gym.models.checkpoint import resolve_device
+
+        try:
+            resolve_device(cfg.device)
+        except ValueError as err:
+            raise SystemExit(f"--device: {err}") from None
     out = Path(cfg.out)
     log = prepare_out(out)
     check_manifest(out, cfg, methods, suites)
@@ -416,7 +439,7 @@ def run(cfg: BenchConfig) -> str:
         first = job.key.episode < cfg.video
         if first or cfg.video_failures:
             job = replace(job, video=str(video_path(out, job)), keep_video=first, video_failures=cfg.video_failures)
-        jobs.append(replace(job, threads=cfg.threads))
+        jobs.append(replace(job, threads=cfg.threads, device=cfg.device))
     write_manifest(out, cfg, methods, suites)
     print(f"{len(planned) - len(jobs)} of {len(planned)} episodes already in {log}; {len(jobs)} to run"
           + (f" (errored ones are retried: {retried} in the log)" if retried else ""))
@@ -431,16 +454,13 @@ def run(cfg: BenchConfig) -> str:
             bar.set_postfix_str(f"{result['method']} {result['env_id']} {result['termination']}")
             bar.update()
 
-        if cfg.workers <= 1:
-            try:
-                for job in jobs:
-                    record(_run_job(job))
-            finally:
-                close_cached()
-        else:
-            with ProcessPoolExecutor(cfg.workers, mp_context=get_context("spawn")) as pool:
-                for result in pool.map(_run_job, jobs, chunksize=1):
-                    record(result)
+        env_vars = {"MUJOCO_GL": os.environ["MUJOCO_GL"]} if "MUJOCO_GL" in os.environ else {}
+        try:
+            for result in run_jobs(jobs, _run_job, error_record, cfg.backend, cfg.workers, cfg.threads,
+                                   cfg.address, env_vars):
+                record(result)
+        finally:
+            close_cached()  # this process's envs (--workers 1 runs here)
     wanted = {j.key.as_tuple()[1:] for j in planned}  # any method's lines of the planned episodes
     text = write_report([r for r in read_records(log) if record_key(r)[1:] in wanted], out, notes=cfg.notes(),
                         beside_paper=cfg.scenarios == "official")

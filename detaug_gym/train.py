@@ -41,6 +41,7 @@ from detaug_gym.models.checkpoint import (
     TRAIN_STATE,
     LabelSupport,
     load_checkpoint,
+    resolve_device,
     save_checkpoint,
     torch_save,
 )
@@ -50,7 +51,7 @@ from detaug_gym.models.flow import Inpaint, flow_matching_loss
 from detaug_gym.models.network import FlowNetwork, NetworkConfig
 
 # Fields that may change when resuming with the same command (the rest must match the saved run).
-RESUMABLE_CHANGES = ("steps", "checkpoint_every", "threads", "progress", "log_every", "action_steps")
+RESUMABLE_CHANGES = ("steps", "checkpoint_every", "threads", "progress", "log_every", "action_steps", "device")
 
 
 @dataclass
@@ -111,6 +112,9 @@ class TrainConfig:
     threads: int = 1
     """torch CPU threads. One is faster than two whenever anything else runs on this 2-core machine
     (see docs/models.md); train two policies side by side instead."""
+    device: str = "cpu"
+    """Torch device: cpu, cuda, cuda:N or auto (cuda when torch sees one). Batches and noise are drawn on the CPU
+    with the run's seed and moved there; the checkpoint is written with CPU tensors (the format is the same)."""
     progress: bool = True
     """Show a progress bar."""
     restart: bool = False
@@ -143,6 +147,10 @@ def check_config(cfg: TrainConfig) -> None:
                          f"{cfg.zero_label_weight} with --method {cfg.method}")
     if not 1 <= cfg.action_steps <= cfg.horizon:
         raise SystemExit(f"error: --action-steps must lie in [1, horizon = {cfg.horizon}], got {cfg.action_steps}")
+    try:
+        resolve_device(cfg.device)
+    except (ValueError, RuntimeError) as err:
+        raise SystemExit(f"error: --device: {err}") from None
 
 
 # ---------------------------------------------------------------------------------------------- pieces
@@ -266,7 +274,7 @@ class Run:
         """Build data, network and optimiser for ``cfg``; resume from ``cfg.out`` when it holds this run."""
         init = load_checkpoint(cfg.init_from) if cfg.init_from else None
         data = load_data(cfg, init)
-        network = build_network(cfg, data, init)
+        network = build_network(cfg, data, init).to(resolve_device(cfg.device))
         trainable = network.adapter_parameters() if cfg.adapter_only else list(network.parameters())
         trainable_ids = {id(p) for p in trainable}
         for p in network.parameters():
@@ -286,9 +294,11 @@ class Run:
 
     def restore(self, state: dict) -> None:
         self.network.load_state_dict(state["model"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        self.optimizer.load_state_dict(state["optimizer"])  # moves the moments to the parameters' device
         self.schedule.load_state_dict(state["schedule"])
-        self.ema.state, self.ema.updates = state["ema"], state["ema_updates"]
+        device = next(self.network.parameters()).device
+        self.ema.state = {k: v.to(device) for k, v in state["ema"].items()}
+        self.ema.updates = state["ema_updates"]
         self.generator.set_state(state["generator"])
         self.step, self.elapsed, self.losses = state["step"], state["elapsed"], state["recent_losses"]
 
@@ -298,18 +308,30 @@ class Run:
         summary = {"steps": self.step, "final_loss": float(np.mean(self.losses[-100:])) if self.losses else None,
                    "wall_time_s": round(self.elapsed, 1), "step_time_s": round(self.elapsed / max(1, self.step), 4),
                    "parameters": self.network.num_parameters(), "finished": final}
-        save_checkpoint(out, method=cfg.method, network=self.network, ema_state=self.ema.state,
+        ema = {k: v.cpu() for k, v in self.ema.state.items()}
+        save_checkpoint(out, method=cfg.method, network=self.network, ema_state=ema,
                         layout=self.data.layout, obs_keys=OBS_KEYS, normalizers=self.data.normalizers,
                         labels=LabelSupport(*self.data.label_bank()),
                         n_points=cfg.n_points if cfg.method == "demogen" else 0, action_steps=cfg.action_steps,
                         extra_config={"train": dataclasses.asdict(cfg), "summary": summary,
                                       "trained_on": trained_on(cfg)})
         torch_save(out / TRAIN_STATE, {
-            "config": dataclasses.asdict(cfg), "model": self.network.state_dict(),
-            "optimizer": self.optimizer.state_dict(), "schedule": self.schedule.state_dict(),
-            "ema": self.ema.state, "ema_updates": self.ema.updates, "generator": self.generator.get_state(),
+            "config": dataclasses.asdict(cfg), "model": _cpu(self.network.state_dict()),
+            "optimizer": _cpu(self.optimizer.state_dict()), "schedule": self.schedule.state_dict(),
+            "ema": ema, "ema_updates": self.ema.updates, "generator": self.generator.get_state(),
             "step": self.step, "elapsed": self.elapsed, "recent_losses": self.losses[-100:]})
         return summary
+
+
+def _cpu(tree):
+    """A state dict (nested dicts / lists of tensors) with every tensor on the CPU."""
+    if isinstance(tree, torch.Tensor):
+        return tree.cpu()
+    if isinstance(tree, dict):
+        return {k: _cpu(v) for k, v in tree.items()}
+    if isinstance(tree, list | tuple):
+        return type(tree)(_cpu(v) for v in tree)
+    return tree
 
 
 def train(cfg: TrainConfig) -> dict:
@@ -320,6 +342,7 @@ def train(cfg: TrainConfig) -> dict:
     run = Run.start(cfg)
     known = torch.zeros(1, cfg.horizon, run.data.layout.plan_dim, dtype=torch.bool)
     known[:, 0, run.data.layout.state_slice] = True  # the current state is inpainted, never predicted
+    known = known.to(next(run.network.parameters()).device)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     log = open(out / "train_log.csv", "a", newline="")  # noqa: SIM115  (closed in finally)
@@ -359,15 +382,18 @@ def train(cfg: TrainConfig) -> dict:
 def train_step(network: FlowNetwork, data: WindowDataset, optimizer: torch.optim.Optimizer, cfg: TrainConfig,
                known: torch.Tensor, generator: torch.Generator) -> float:
     """One optimiser step on a fresh batch; returns the loss."""
+    device = known.device
     batch = data.sample(cfg.batch_size, generator)
     drop = None
     if batch.label is not None and cfg.label_dropout > 0:
-        drop = torch.rand(cfg.batch_size, generator=generator) < cfg.label_dropout
+        drop = (torch.rand(cfg.batch_size, generator=generator) < cfg.label_dropout).to(device)
+    obs, label, points, point_mask, plan = (None if x is None else x.to(device) for x in
+                                            (batch.obs, batch.label, batch.points, batch.point_mask, batch.plan))
 
     def velocity(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        return network(x, t, batch.obs, batch.label, batch.points, batch.point_mask, drop)
+        return network(x, t, obs, label, points, point_mask, drop)
 
-    loss = flow_matching_loss(velocity, batch.plan, Inpaint(known, batch.plan), generator)
+    loss = flow_matching_loss(velocity, plan, Inpaint(known, plan), generator)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     params = [p for group in optimizer.param_groups for p in group["params"]]

@@ -151,6 +151,23 @@ def read_config(path: str | Path) -> dict:
                               f"{train_command(path)}") from None
 
 
+def resolve_device(device: str | torch.device = "cpu") -> torch.device:
+    """The torch device for ``device`` (``"auto"``: cuda when torch sees one, else cpu); a clear error when the
+    asked one is not there."""
+    if str(device) == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    dev = torch.device(device)
+    if dev.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if (dev.index or 0) >= count:
+            build = f"a CUDA {torch.version.cuda} build" if torch.version.cuda else "a CPU-only build"
+            raise ValueError(f"device {str(device)!r} asked, but torch {torch.__version__} ({build}) sees "
+                             f"{count} CUDA device(s); use device=cpu" + (" or auto" if count == 0 else ""))
+    elif dev.type != "cpu":
+        raise ValueError(f"device must be cpu, cuda, cuda:N or auto, got {str(device)!r}")
+    return dev
+
+
 def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Checkpoint:
     """Load a checkpoint folder written by ``python -m detaug_gym.train``.
 
@@ -159,6 +176,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
             train command that (re)creates the folder.
     """
     path = Path(path)
+    device = resolve_device(device)
     config = read_config(path)
     method = config.get("method")
     train = config.get("train") if isinstance(config.get("train"), dict) else {}

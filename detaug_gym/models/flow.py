@@ -80,10 +80,11 @@ def flow_matching_loss(velocity: VelocityFn, x1: torch.Tensor, inpaint: Inpaint 
                        generator: torch.Generator | None = None) -> torch.Tensor:
     """Mean squared velocity error on a batch of clean normalised plans ``x1`` (B, H, D).
 
-    ``t`` is uniform on [0, 1]; inpainted entries are clean in ``x_t`` and excluded from the mean.
+    ``t`` is uniform on [0, 1]; inpainted entries are clean in ``x_t`` and excluded from the mean. The noise is
+    drawn on the CPU (``generator`` is a CPU generator) and moved to ``x1``'s device.
     """
-    x0 = torch.randn(x1.shape, generator=generator, dtype=x1.dtype, device=x1.device)
-    t = torch.rand(x1.shape[0], generator=generator, dtype=x1.dtype, device=x1.device)
+    x0 = torch.randn(x1.shape, generator=generator, dtype=x1.dtype).to(x1.device)
+    t = torch.rand(x1.shape[0], generator=generator, dtype=x1.dtype).to(x1.device)
     xt = interpolate(x0, x1, t)
     if inpaint is not None:
         xt = inpaint.apply(xt)
@@ -110,7 +111,7 @@ def remaining_steps(total_steps: int, t_start: float) -> int:
 def sample(velocity: VelocityFn, shape: tuple[int, ...], *, steps: int = 10, t_start: float = 0.0,
            x_start: torch.Tensor | None = None, inpaint: Inpaint | None = None,
            guidance: Guidance | None = None, generator: torch.Generator | None = None,
-           dtype: torch.dtype = torch.float32) -> torch.Tensor:
+           dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> torch.Tensor:
     """Integrate the flow from ``t_start`` to 1 and return normalised plans ``shape`` = (B, H, D).
 
     Args:
@@ -121,11 +122,14 @@ def sample(velocity: VelocityFn, shape: tuple[int, ...], *, steps: int = 10, t_s
             unexecuted remainder), the start is the re-noised ``(1 - t_start) noise + t_start x_start``.
         inpaint: known entries held fixed at every step.
         guidance: optional gradient guidance (late steps only).
-        generator: source of the initial noise, for reproducible plans.
+        generator: source of the initial noise, for reproducible plans: a CPU generator, so a seed gives the
+            same noise on every device.
+        device: where ``velocity`` runs (``x_start`` and ``inpaint`` must be there too).
     """
-    noise = torch.randn(shape, generator=generator, dtype=dtype)
+    noise = torch.randn(shape, generator=generator, dtype=dtype).to(device)
     if x_start is not None:
-        x = interpolate(noise, x_start.to(dtype).expand(shape), torch.full((shape[0],), t_start, dtype=dtype))
+        x = interpolate(noise, x_start.to(dtype).expand(shape),
+                        torch.full((shape[0],), t_start, dtype=dtype, device=device))
     elif t_start > 0.0:
         raise ValueError("t_start > 0 needs x_start (the plan to re-noise)")
     else:
@@ -134,7 +138,7 @@ def sample(velocity: VelocityFn, shape: tuple[int, ...], *, steps: int = 10, t_s
     for t0, t1 in zip(times[:-1], times[1:]):
         if inpaint is not None:
             x = inpaint.apply(x)
-        v = velocity(x, torch.full((shape[0],), t0, dtype=dtype))
+        v = velocity(x, torch.full((shape[0],), t0, dtype=dtype, device=device))
         step = (t1 - t0) * v
         if guidance is not None and t0 >= guidance.t_min:
             step = step + guidance.step(x, v, t0)

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from detaug_gym.actions import GRIPPER_CLOSE, GRIPPER_OPEN
-from detaug_gym.models.checkpoint import Checkpoint, load_checkpoint
+from detaug_gym.models.checkpoint import Checkpoint, load_checkpoint, resolve_device
 from detaug_gym.models.dataset import observation_vector
 from detaug_gym.models.flow import Guidance, Inpaint, remaining_steps, sample
 from detaug_gym.policies.options import FlowOptions
@@ -54,6 +54,8 @@ class FlowPolicy:
             null token: unconditional) or ``"auto"`` (zero for label models, nothing for ``base``).
         binarize_gripper: snap the gripper command to -1 / +1.
         seed: default seed for :meth:`reset` without one.
+        device: where the network runs (``cpu``, ``cuda``, ``cuda:N``, ``auto``); plans come back on the CPU,
+            and the noise is drawn on the CPU, so a seed gives the same noise on every device.
     """
 
     zoo_method: str | None = None  # the zoo folder ``policies/<zoo_method>/<suite>/`` a subclass loads by default
@@ -66,11 +68,13 @@ class FlowPolicy:
         return [zoo_dir(cls.zoo_method, suite)] if cls.zoo_method else []
 
     def __init__(self, checkpoint: Checkpoint | str | Path, action_steps: int | None = None, flow_steps: int = 10,
-                 label_mode: str = "auto", binarize_gripper: bool = True, seed: int | None = None) -> None:
+                 label_mode: str = "auto", binarize_gripper: bool = True, seed: int | None = None,
+                 device: str = "cpu") -> None:
         options = FlowOptions(action_steps=action_steps, flow_steps=flow_steps, label_mode=label_mode,
-                              binarize_gripper=binarize_gripper, seed=seed)  # type and range checks
+                              binarize_gripper=binarize_gripper, seed=seed, device=device)  # type and range checks
+        self.device = resolve_device(options.device)
         self.checkpoint = checkpoint if isinstance(checkpoint, Checkpoint) else load_checkpoint(checkpoint)
-        self.network = self.checkpoint.network
+        self.network = self.checkpoint.network.to(self.device)
         self.layout = self.checkpoint.layout
         self.horizon = self.network.config.dit.horizon
         action_steps = options.action_steps or self.checkpoint.action_steps or DEFAULT_ACTION_STEPS
@@ -168,33 +172,35 @@ class FlowPolicy:
         Returns:
             plans (K, H, D) float32 in physical units; ``plan[:, 0, state]`` is the current state.
         """
-        net, norm = self.network, self.checkpoint.normalizers
+        net, norm, dev = self.network, self.checkpoint.normalizers, self.device
         batch = _batched(obs)
         k = _count(batch, labels, num_samples)
         obs_cond = torch.from_numpy(norm["obs"].normalize(observation_vector(batch, self.checkpoint.obs_keys)))
         state = torch.from_numpy(self.layout.state_vector(batch))
-        obs_cond, state = obs_cond.expand(k, -1), state.expand(k, -1)
+        obs_cond, state = obs_cond.to(dev).expand(k, -1), state.expand(k, -1)
         label = self._label_tensor(labels, k)
+        label = None if label is None else label.to(dev)
         points, point_mask = self._points(batch, k)
         shape = (k, self.horizon, self.layout.plan_dim)
         known = torch.zeros(shape, dtype=torch.bool)
         known[:, 0, self.layout.state_slice] = True
         first = torch.cat([state, torch.zeros(k, self.layout.action_dim)], dim=-1)
-        inpaint = Inpaint(known, norm["plan"].normalize(first)[:, None].expand(shape))
-        x_start = None if init_plan is None else norm["plan"].normalize(torch.as_tensor(init_plan).float())
-        if guidance is not None:
+        inpaint = Inpaint(known.to(dev), norm["plan"].normalize(first)[:, None].expand(shape).to(dev))
+        x_start = None if init_plan is None else norm["plan"].normalize(torch.as_tensor(init_plan).float()).to(dev)
+        if guidance is not None:  # the cost runs on the CPU, its gradient flows back to the device
             user_cost = guidance.cost
-            guidance = dataclasses.replace(guidance, cost=lambda x, t: user_cost(norm["plan"].unnormalize(x), t))
+            guidance = dataclasses.replace(guidance,
+                                           cost=lambda x, t: user_cost(norm["plan"].unnormalize(x.cpu()), t))
         with torch.no_grad():
-            extra = net.extra(points, point_mask)
+            extra = net.extra(*(None if p is None else p.to(dev) for p in (points, point_mask)))
 
         def velocity(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
             return net.dit(x, t, obs_cond, label, extra)
 
         steps = steps or (self.flow_steps if init_plan is None else remaining_steps(self.flow_steps, t_start))
         x = sample(velocity, shape, steps=steps, t_start=t_start, x_start=x_start, inpaint=inpaint,
-                   guidance=guidance, generator=generator or self.generator)
-        return norm["plan"].unnormalize(x)
+                   guidance=guidance, generator=generator or self.generator, device=dev)
+        return norm["plan"].unnormalize(x.cpu())
 
     def _label_tensor(self, labels, k: int) -> torch.Tensor | None:
         if labels is None:

@@ -111,6 +111,20 @@ def policy_options_class(name: str) -> type | None:
     return None if spec.options is None else _import(spec.options)
 
 
+def option_names(name: str, options: Mapping[str, Any] | None = None) -> set[str]:
+    """The option keys policy ``name`` takes given ``options``: its dataclass's fields and, for a wrapping
+    policy (AEGIS), those of the policy it wraps (``options`` may name which)."""
+    cls = policy_options_class(name)
+    if cls is None:
+        return set()
+    fields = config_fields(cls)
+    names = set(fields)
+    if cls.WRAPS:
+        wrapped = (options or {}).get(cls.WRAPS, fields[cls.WRAPS][0].default)
+        names |= option_names(str(wrapped))
+    return names
+
+
 def parse_policy_options(name: str, raw: Mapping[str, Any]) -> dict[str, Any]:
     """Check and convert a policy's options without building it: ``("detaug", {"k": "8", "latch": "no"})``
     -> ``{"k": 8, "latch": False}``.

@@ -16,6 +16,7 @@ Defaults that mirror constants of heavier modules (the AEGIS ellipsoid, the CAPE
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -116,14 +117,19 @@ class FlowSamplingOptions(PolicyOptions):
     """Snap the gripper command to -1 (open) / +1 (close)."""
     seed: int | None = None
     """Default seed of the sampling noise when reset() is called without one."""
+    device: str = "cpu"
+    """Torch device the network runs on: cpu, cuda, cuda:N or auto (cuda when torch sees one, else cpu). The
+    sampling noise is drawn on the CPU, so a seed gives the same noise everywhere; collision scoring stays
+    on the CPU."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _require(self.flow_steps >= 1, f"flow_steps must be >= 1, got {self.flow_steps}")
+        check_device(self.device)
 
     def flow_policy_kwargs(self) -> dict[str, Any]:
         """The keyword arguments of :class:`~detaug_gym.models.policy.FlowPolicy` these options set."""
-        return self.given("flow_steps", "label_mode", "binarize_gripper", "seed")
+        return self.given("flow_steps", "label_mode", "binarize_gripper", "seed", "device")
 
 
 @dataclass
@@ -249,6 +255,17 @@ class AegisOptions(PolicyOptions):
                  f"need alpha > 0, dt > 0 and alpha * dt <= 1, got alpha={self.alpha}, dt={self.dt}")
         _require(min(self.ee_semi_axes) > 0,
                  f"end-effector semi-axes must be 3 positive lengths, got {self.ee_semi_axes}")
+
+
+DEVICE_PATTERN = re.compile(r"(cpu|auto|cuda(:\d+)?)")
+
+
+def check_device(device: str) -> str:
+    """``device`` if it names a device this library runs on (no torch import: availability is checked when
+    a network is placed, by :func:`detaug_gym.models.checkpoint.resolve_device`)."""
+    _require(isinstance(device, str) and DEVICE_PATTERN.fullmatch(device) is not None,
+             f"device must be cpu, cuda, cuda:N or auto, got {device!r}")
+    return device
 
 
 def _check_guidance(scale: float, t_min: float) -> None:
