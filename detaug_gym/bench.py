@@ -55,7 +55,7 @@ from detaug_gym.envs.suites import NUM_INIT_STATES, SUITES, get_suite, parse_lev
 from detaug_gym.manifest import check_manifest, method_checkpoints, write_manifest
 from detaug_gym.policies.options import check_device
 from detaug_gym.report import read_records, record_key, repair_log, write_report
-from detaug_gym.rollout import EpisodeKey, EpisodeRecord, run_episode
+from detaug_gym.rollout import EpisodeKey, EpisodeRecord, run_episodes
 from detaug_gym.seeds import bench_episode_seed
 
 DEFAULT_METHODS = ("detaug", "base", "scripted")
@@ -80,6 +80,9 @@ class BenchConfig:
     """Parallel workers: processes (--backend local) or Ray actors (--backend ray)."""
     threads: int = 1
     """Torch threads per worker."""
+    envs_per_worker: int = 1
+    """Episodes each worker steps together, one env each; flow policies that replan at the same step plan in
+    one batched network call (the records are the same as one at a time, docs/performance.md)."""
     device: str = "cpu"
     """Torch device of the flow policies' networks: cpu, cuda, cuda:N or auto (a method option device=... wins)."""
     backend: Literal["local", "ray"] = "local"
@@ -108,7 +111,7 @@ class BenchConfig:
     """steps (SafeLIBERO's 10 no-op steps) or still (then on until the obstacle is still)."""
 
     def __post_init__(self) -> None:
-        for name in ("episodes", "workers", "threads"):
+        for name in ("episodes", "workers", "threads", "envs_per_worker"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name} must be >= 1, got {getattr(self, name)}")
         if self.video < 0:
@@ -334,41 +337,71 @@ def video_path(out: Path, job: Job) -> Path:
 _CACHE: dict = {}
 
 
-def _run_job(job: Job) -> dict:
-    """Worker entry: run one episode with cached env and policy."""
+def group_jobs(jobs: list[Job], size: int) -> list[tuple[Job, ...]]:
+    """Consecutive jobs of one (method, cell, seed, env options, rendering) in groups of up to ``size``: the
+    episodes a worker steps together (``--envs-per-worker``)."""
+    groups: list[list[Job]] = []
+    for job in jobs:
+        kind = (job.key.method, job.key.env_id, job.run_seed, job.env_kwargs, job.video is not None)
+        last = groups[-1] if groups else None
+        if last and len(last) < size and (last[0].key.method, last[0].key.env_id, last[0].run_seed,
+                                          last[0].env_kwargs, last[0].video is not None) == kind:
+            last.append(job)
+        else:
+            groups.append([job])
+    return [tuple(g) for g in groups]
+
+
+def _run_group(group: tuple[Job, ...]) -> list[dict]:
+    """Worker entry: run a group of episodes of one method and cell in lockstep, one cached env and policy per
+    slot; with several, flow policies share a plan batcher (their replans at one step are one network call)."""
     import gymnasium as gym
     import torch
 
     import detaug_gym  # noqa: F401
-    from detaug_gym.policies import make_policy, option_names
+    from detaug_gym.models.batching import PlanBatcher
+    from detaug_gym.policies import make_policy, option_names, share_planner
 
-    torch.set_num_threads(job.threads)  # torch's worker threads stall when several processes share the cores
-    render = job.video is not None
-    env_key = ("env", job.key.env_id, job.env_kwargs, render)
-    pol_key = ("policy", job.key.method, job.suite, job.device)
+    first = group[0]
+    torch.set_num_threads(first.threads)  # torch's worker threads stall when several processes share the cores
+    render = first.video is not None
+    env_keys = [("env", first.key.env_id, first.env_kwargs, render, slot) for slot in range(len(group))]
+    pol_keys = [("policy", first.key.method, first.suite, first.device, slot) for slot in range(len(group))]
     try:
-        if env_key not in _CACHE:
-            _CACHE[env_key] = gym.make(job.key.env_id, **dict(job.env_kwargs),
-                                       **({"render_mode": "rgb_array"} if render else {}))
-        if pol_key not in _CACHE:
-            name, options = parse_method(job.key.method)
-            if "device" in option_names(name, options):
-                options.setdefault("device", job.device)
-            _CACHE[pol_key] = make_policy(name, suite=job.suite, **options)
+        for env_key, pol_key in zip(env_keys, pol_keys):
+            if env_key not in _CACHE:
+                _CACHE[env_key] = gym.make(first.key.env_id, **dict(first.env_kwargs),
+                                           **({"render_mode": "rgb_array"} if render else {}))
+            if pol_key not in _CACHE:
+                name, options = parse_method(first.key.method)
+                if "device" in option_names(name, options):
+                    options.setdefault("device", first.device)
+                _CACHE[pol_key] = make_policy(name, suite=first.suite, **options)
     except Exception as exc:  # construction errors are recorded like episode errors
-        return error_record(job, f"{type(exc).__name__}: {exc}")
-    hooks = []
+        return [error_record(job, f"{type(exc).__name__}: {exc}") for job in group]
+    policies = [_CACHE[k] for k in pol_keys]
+    batcher = PlanBatcher() if len(group) > 1 else None
+    for policy in policies:
+        share_planner(policy, batcher)
+    hooks = [[] for _ in group]
     if render:
         from detaug_gym.video import VideoRecorder
 
-        hooks.append(VideoRecorder(job.video, label=job.key.method))
-    record = run_episode(_CACHE[env_key], _CACHE[pol_key], job.key, job.suite, job.level, hooks=hooks,
-                         run_seed=job.run_seed, options=dict(job.reset_options))
-    if render and hooks[0].frames and (job.keep_video or not record.success):
-        record.video = str(hooks[0].save())
-    if record.termination == "error":
-        _CACHE.pop(env_key).close()  # a broken simulator is rebuilt for the next episode
-    return record.to_json()
+        hooks = [[VideoRecorder(job.video, label=job.key.method)] for job in group]
+    records = run_episodes([_CACHE[k] for k in env_keys], policies, [job.key for job in group], first.suite,
+                           first.level, hooks, first.run_seed, [dict(job.reset_options) for job in group], batcher)
+    for policy in policies:
+        share_planner(policy, None)
+    for job, record, hook, env_key in zip(group, records, hooks, env_keys):
+        if render and hook[0].frames and (job.keep_video or not record.success):
+            record.video = str(hook[0].save())
+        if record.termination == "error":
+            _CACHE.pop(env_key).close()  # a broken simulator is rebuilt for the next episode
+    return [record.to_json() for record in records]
+
+
+def _group_error(group: tuple[Job, ...], error: str) -> list[dict]:
+    return [error_record(job, error) for job in group]
 
 
 def error_record(job: Job, error: str) -> dict:
@@ -456,9 +489,10 @@ def run(cfg: BenchConfig) -> str:
 
         env_vars = {"MUJOCO_GL": os.environ["MUJOCO_GL"]} if "MUJOCO_GL" in os.environ else {}
         try:
-            for result in run_jobs(jobs, _run_job, error_record, cfg.backend, cfg.workers, cfg.threads,
-                                   cfg.address, env_vars):
-                record(result)
+            for results in run_jobs(group_jobs(jobs, cfg.envs_per_worker), _run_group, _group_error, cfg.backend,
+                                    cfg.workers, cfg.threads, cfg.address, env_vars):
+                for result in results:
+                    record(result)
         finally:
             close_cached()  # this process's envs (--workers 1 runs here)
     wanted = {j.key.as_tuple()[1:] for j in planned}  # any method's lines of the planned episodes

@@ -19,7 +19,7 @@ import inspect
 import math
 import time
 import traceback
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -118,6 +118,58 @@ def until_done(tail_steps: int = 0, truncation: bool = True) -> Callable[[Step],
     return stop
 
 
+class Rollout:
+    """One episode, stepped from outside: :meth:`begin`, then :meth:`advance` with the policy's action until
+    :attr:`done`. :func:`rollout` drives one; :func:`run_episodes` drives several in lockstep. Arguments as in
+    :func:`rollout`."""
+
+    def __init__(self, env, policy: Policy, *, seed: int | None = None, options: Mapping | None = None,
+                 start: Callable[[object], tuple[dict, dict]] | None = None, hooks: Iterable[Hook] = (),
+                 stop: Callable[[Step], bool] | None = None, max_steps: int | None = None,
+                 dtype: type | None = np.float32) -> None:
+        self.env, self.policy, self.seed, self.options, self._start = env, policy, seed, options, start
+        self.hooks, self.stop, self.max_steps, self.dtype = list(hooks), stop or until_done(), max_steps, dtype
+        self.steps, self.done = 0, False
+        self.obs: dict[str, np.ndarray] = {}
+        self.info: dict = {}
+        self.start_info: dict = {}
+        self.context: EpisodeContext | None = None
+
+    def begin(self) -> dict[str, np.ndarray]:
+        """Start the episode (env, policy, hooks); returns the first observation."""
+        env = self.env
+        obs, info = self._start(env) if self._start is not None else env.reset(seed=self.seed,
+                                                                               options=dict(self.options or {}))
+        self.context = episode_context(env, self.seed)
+        reset_policy(self.policy, self.seed, self.context)
+        for hook in self.hooks:
+            hook.on_start(env, obs, info)
+        self.obs, self.info, self.start_info = obs, info, info
+        self._states = any(h.needs_states for h in self.hooks)
+        self.done = self.max_steps is not None and self.max_steps <= 0
+        return obs
+
+    def advance(self, action: np.ndarray) -> bool:
+        """Send the policy's ``action`` through the hooks to the env; returns :attr:`done`."""
+        action = np.asarray(action, dtype=self.dtype)
+        sent = action
+        for hook in self.hooks:
+            sent = hook.transform(sent)
+        state = self.env.unwrapped.get_state() if self._states else None
+        next_obs, reward, terminated, truncated, info = self.env.step(sent)
+        step = Step(self.steps, self.obs, action, sent, next_obs, float(reward), bool(terminated), bool(truncated),
+                    info, state)
+        self.steps += 1
+        for hook in self.hooks:
+            hook.on_step(step)
+        self.obs, self.info = next_obs, info
+        self.done = self.stop(step) or (self.max_steps is not None and self.steps >= self.max_steps)
+        return self.done
+
+    def result(self) -> RolloutResult:
+        return RolloutResult(self.steps, self.obs, self.info, self.start_info, self.context)
+
+
 def rollout(env, policy: Policy, *, seed: int | None = None, options: Mapping | None = None,
             start: Callable[[object], tuple[dict, dict]] | None = None, hooks: Iterable[Hook] = (),
             stop: Callable[[Step], bool] | None = None, max_steps: int | None = None,
@@ -135,32 +187,12 @@ def rollout(env, policy: Policy, *, seed: int | None = None, options: Mapping | 
         dtype: the policy's actions are cast to it (float32, the action space's); None sends them as they
             are (the augmentation replay's float64 tracking actions).
     """
-    hooks = list(hooks)
-    obs, info = start(env) if start is not None else env.reset(seed=seed, options=dict(options or {}))
-    context = episode_context(env, seed)
-    reset_policy(policy, seed, context)
-    for hook in hooks:
-        hook.on_start(env, obs, info)
-    start_info, stop = info, stop or until_done()
-    states = any(h.needs_states for h in hooks)
-    base = env.unwrapped
-    steps = 0
-    while max_steps is None or steps < max_steps:
-        action = np.asarray(policy.act(obs), dtype=dtype)
-        sent = action
-        for hook in hooks:
-            sent = hook.transform(sent)
-        state = base.get_state() if states else None
-        next_obs, reward, terminated, truncated, info = env.step(sent)
-        step = Step(steps, obs, action, sent, next_obs, float(reward), bool(terminated), bool(truncated), info,
-                    state)
-        steps += 1
-        for hook in hooks:
-            hook.on_step(step)
-        obs = next_obs
-        if stop(step):
-            break
-    return RolloutResult(steps, obs, info, start_info, context)
+    run = Rollout(env, policy, seed=seed, options=options, start=start, hooks=hooks, stop=stop,
+                  max_steps=max_steps, dtype=dtype)
+    run.begin()
+    while not run.done:
+        run.advance(policy.act(run.obs))
+    return run.result()
 
 
 def step_limit(env) -> int | None:
@@ -346,28 +378,91 @@ class CollisionAttribution(Hook):
                 "bent": not bool(seg.frozen_mask()[frame])}
 
 
+class BenchEpisode:
+    """The bench's episode as a :class:`Rollout` with its metrics, collision attribution and record."""
+
+    def __init__(self, env, policy: Policy, key: EpisodeKey, suite: str, level: str, hooks: Iterable[Hook] = (),
+                 run_seed: int = 0, options: dict | None = None) -> None:
+        self.policy = policy
+        self.record = EpisodeRecord(key.method, key.env_id, suite, level, key.task, key.episode, key.seed,
+                                    run_seed=run_seed)
+        self.metrics, self.attribution = ObstacleMetrics(), CollisionAttribution(policy)
+        self.run = Rollout(env, policy, seed=key.seed, options={**(options or {}), "task": key.task},
+                           hooks=[self.metrics, self.attribution, *hooks])
+        self.finished = False
+        self._start = time.perf_counter()
+
+    def begin(self) -> None:
+        self._guard(self.run.begin)
+
+    def advance(self, action: np.ndarray | BaseException) -> None:
+        """Step with the policy's action (or record the exception the policy raised instead of acting)."""
+        if isinstance(action, BaseException):
+            self.fail(action)
+        else:
+            self._guard(self.run.advance, action)
+
+    def _guard(self, fn, *args) -> None:
+        try:
+            fn(*args)
+        except Exception as exc:  # one broken episode (policy bug, simulator instability) must not stop a run
+            self.fail(exc)
+            return
+        if self.run.done:
+            self._finish()
+
+    def fail(self, exc: BaseException) -> None:
+        self.record.error = f"{type(exc).__name__}: {exc}\n" + "".join(traceback.format_exception(exc, limit=3))
+        self.record.termination = "error"
+        self.finished = True
+
+    def _finish(self) -> None:
+        rec, result = self.record, self.run.result()
+        try:
+            rec.task_key = result.context.task_key if result.context else None
+            rec.success = bool(result.info["is_success"])
+            rec.termination = "success" if rec.success else "timeout"
+            summary = getattr(self.policy, "episode_summary", None)
+            rec.summary = dict(summary()) if callable(summary) else {}
+        except Exception as exc:
+            self.fail(exc)
+        self.finished = True
+
+    def result(self) -> EpisodeRecord:
+        """The finished episode's record (metrics kept even when it failed)."""
+        rec, metrics = self.record, self.metrics
+        rec.init_state, rec.obstacle = metrics.start_info.get("init_state"), metrics.start_info.get("obstacle")
+        rec.collision, rec.contact, rec.steps = metrics.collision, metrics.contact, metrics.steps
+        rec.obstacle_pose, rec.first_collision_step = metrics.obstacle_pose, metrics.first_collision
+        rec.collision_cause = self.attribution.cause()
+        rec.min_clearance = None if math.isinf(metrics.clearance) else metrics.clearance
+        rec.wall_time = time.perf_counter() - self._start
+        return rec
+
+
 def run_episode(env, policy: Policy, key: EpisodeKey, suite: str, level: str, hooks: Iterable[Hook] = (),
                 run_seed: int = 0, options: dict | None = None) -> EpisodeRecord:
     """Roll ``policy`` out in ``env`` for one episode (with extra ``hooks``, e.g. a video; reset ``options``
     beyond the task, e.g. an official ``episode``); never raises (errors are recorded)."""
-    record = EpisodeRecord(key.method, key.env_id, suite, level, key.task, key.episode, key.seed, run_seed=run_seed)
-    start = time.perf_counter()
-    metrics, attribution = ObstacleMetrics(), CollisionAttribution(policy)
-    try:
-        result = rollout(env, policy, seed=key.seed, options={**(options or {}), "task": key.task},
-                         hooks=[metrics, attribution, *hooks])
-        record.task_key = result.context.task_key if result.context else None
-        record.success = bool(result.info["is_success"])
-        record.termination = "success" if record.success else "timeout"
-        summary = getattr(policy, "episode_summary", None)
-        record.summary = dict(summary()) if callable(summary) else {}
-    except Exception as exc:  # one broken episode (policy bug, simulator instability) must not stop a run
-        record.error = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}"
-        record.termination = "error"
-    record.init_state, record.obstacle = metrics.start_info.get("init_state"), metrics.start_info.get("obstacle")
-    record.collision, record.contact, record.steps = metrics.collision, metrics.contact, metrics.steps
-    record.obstacle_pose, record.first_collision_step = metrics.obstacle_pose, metrics.first_collision
-    record.collision_cause = attribution.cause()
-    record.min_clearance = None if math.isinf(metrics.clearance) else metrics.clearance
-    record.wall_time = time.perf_counter() - start
-    return record
+    return run_episodes([env], [policy], [key], suite, level, [list(hooks)], run_seed, [options])[0]
+
+
+def run_episodes(envs: Sequence, policies: Sequence[Policy], keys: Sequence[EpisodeKey], suite: str, level: str,
+                 hooks: Sequence[Iterable[Hook]] | None = None, run_seed: int = 0,
+                 options: Sequence[dict | None] | None = None, batcher=None) -> list[EpisodeRecord]:
+    """Episodes ``keys[i]`` of ``policies[i]`` in ``envs[i]``, stepped in lockstep; the actions of each step come
+    from :func:`~detaug_gym.policies.act_batch` (with a shared ``batcher``, flow policies that replan at the
+    same step share one network call). An episode ends on its own; one that errors is recorded and the others
+    go on. Never raises."""
+    from detaug_gym.policies.base import act_batch
+
+    n = len(envs)
+    episodes = [BenchEpisode(envs[i], policies[i], keys[i], suite, level, (hooks or [()] * n)[i], run_seed,
+                             (options or [None] * n)[i]) for i in range(n)]
+    for episode in episodes:
+        episode.begin()
+    while active := [e for e in episodes if not e.finished]:
+        actions = act_batch([e.policy for e in active], [e.run.obs for e in active], batcher)
+        for episode, action in zip(active, actions):
+            episode.advance(action)
+    return [e.result() for e in episodes]

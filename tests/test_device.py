@@ -64,8 +64,9 @@ def test_the_bench_hands_the_device_to_flow_policies_only():
     assert {"device"} <= option_names("detaug") & option_names("cape") & option_names("aegis")
     assert "device" not in option_names("scripted") | option_names("aegis", {"base": "scripted"})
     key = bench.EpisodeKey("aegis", "SafeLibero-Spatial-L2-v0", 0, 0, 1)
-    record = bench._run_job(bench.Job(key, "spatial", "2", env_kwargs=(("max_episode_steps", 3),), device="auto"))
+    [record] = bench._run_group((bench.Job(key, "spatial", "2", env_kwargs=(("max_episode_steps", 3),),
+                                           device="auto"),))
     assert record["termination"] != "error", record["error"]
-    policy = bench._CACHE[("policy", "aegis", "spatial", "auto")]
+    policy = bench._CACHE[("policy", "aegis", "spatial", "auto", 0)]
     assert policy.policy.device == resolve_device("auto")
     bench.close_cached()

@@ -65,7 +65,9 @@ class ObstacleManipulationEnv(gym.Env):
         ``eef_quat`` (4,) xyzw, ``object_poses`` (S, 7) pos + xyzw quat of the task-relevant objects,
         ``object_mask`` (S,), ``object_points`` (S, 64, 3) world-frame surface samples of those objects (zeros
         for a slot without a body), ``task_id`` (T,) one-hot, ``obstacle_points`` (256, 3) world-frame surface
-        samples, ``obstacle_pose`` (7,), ``obstacle_size`` (3,) half-extents, ``obstacle_mask`` (1,).
+        samples, ``obstacle_local_points`` (256, 3) the same samples in the obstacle's own frame (the same
+        numbers every episode for a shape: what shape-derived caches are built from), ``obstacle_pose`` (7,),
+        ``obstacle_size`` (3,) half-extents, ``obstacle_mask`` (1,).
         Obstacle entries are zero (mask 0) without an obstacle.
     Action: ``Box(-1, 1, (7,))``: OSC_POSE delta (scales in :mod:`detaug_gym.actions`) and the gripper
         (-1 open, +1 close). Wrong shapes and non-finite values raise ``ValueError``.
@@ -122,6 +124,7 @@ class ObstacleManipulationEnv(gym.Env):
             "object_points": _box((object_slots, OBJECT_POINTS, 3)),
             "task_id": _box(num_tasks, 0.0, 1.0),
             "obstacle_points": _box((OBSTACLE_POINTS, 3)),
+            "obstacle_local_points": _box((OBSTACLE_POINTS, 3)),
             "obstacle_pose": _box(7),
             "obstacle_size": _box(3, 0.0, np.inf),
             "obstacle_mask": _box(1, 0.0, 1.0),
@@ -399,6 +402,7 @@ class ObstacleManipulationEnv(gym.Env):
             "object_points": scene.tracked_points(self.object_slots),
             "task_id": task_id,
             "obstacle_points": np.zeros((OBSTACLE_POINTS, 3)),
+            "obstacle_local_points": np.zeros((OBSTACLE_POINTS, 3)),
             "obstacle_pose": np.zeros(7),
             "obstacle_size": np.zeros(3),
             "obstacle_mask": np.zeros(1),
@@ -409,6 +413,7 @@ class ObstacleManipulationEnv(gym.Env):
             pos = d.xpos[handle.body_id]
             quat = d.xquat[handle.body_id]
             obs["obstacle_points"] = handle.local_points @ rot.T + pos
+            obs["obstacle_local_points"] = handle.local_points
             obs["obstacle_pose"] = np.concatenate([pos, quat[[1, 2, 3, 0]]])
             obs["obstacle_size"] = handle.half_extents
             obs["obstacle_mask"] = np.ones(1)

@@ -4,7 +4,8 @@ The env reports (``ObstacleManipulationEnv``): ``obstacle_mask`` (1,) 1 with an 
 (then every other obstacle entry is zero), ``obstacle_pose`` (7,) position + xyzw quaternion of the
 obstacle's frame, ``obstacle_points`` (N, 3) world-frame surface samples (N = 256) and ``obstacle_size``
 (3,) half-extents. The samples are fixed in the obstacle's frame and move with its pose, so the points in
-the obstacle frame (:func:`obstacle_local_points`) identify its *shape* across episodes and pushes.
+the obstacle frame (:func:`obstacle_local_points`; the env reports them as ``obstacle_local_points``) identify
+its *shape* across episodes and pushes.
 
 :data:`SHAPES` is the one cache of what is derived from a shape (the convex hull and SDF grids of
 :func:`~detaug_gym.geometry.obstacle_sdf`, AEGIS's ellipsoid fit): a shape is looked up by its local
@@ -43,7 +44,12 @@ def obstacle_frame(obs: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarra
 
 
 def obstacle_local_points(obs: Mapping[str, np.ndarray]) -> np.ndarray:
-    """The observation's ``obstacle_points`` in the obstacle frame, ``(N, 3)`` float64."""
+    """The obstacle's surface samples in its own frame, ``(N, 3)`` float64: the env's ``obstacle_local_points``
+    (the same numbers every episode), or for an observation without them ``obstacle_points`` taken into the
+    obstacle frame (float32 poses jitter those by ~1e-7 m, so what is built from the first one seen then depends
+    on which episode that was)."""
+    if "obstacle_local_points" in obs:
+        return np.asarray(obs["obstacle_local_points"], np.float64)
     position, rotation = obstacle_frame(obs)
     return (np.asarray(obs["obstacle_points"], np.float64) - position) @ rotation
 

@@ -13,6 +13,8 @@ Every file is written to a temporary name and renamed, so an interrupted save ne
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 import os
 from dataclasses import dataclass, field
@@ -103,6 +105,9 @@ class Checkpoint:
     labels: LabelSupport
     n_points: int = 0
     config: dict = field(default_factory=dict)
+    digest: str = ""
+    """sha256 of the weights file: policies whose networks have the same digest (and device) can share one
+    batched network call (:mod:`detaug_gym.models.batching`)."""
 
     @property
     def action_steps(self) -> int | None:
@@ -183,7 +188,8 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
     command = train_command(path, method, train.get("data"))
     try:
         network = FlowNetwork(NetworkConfig.from_dict(config["network"]))
-        state = torch.load(path / WEIGHTS, map_location=device, weights_only=True)
+        weights = (path / WEIGHTS).read_bytes()
+        state = torch.load(io.BytesIO(weights), map_location=device, weights_only=True)
         network.load_state_dict(state)
         norm = json.loads((path / NORMALIZATION).read_text())
         normalizers = {name: Normalizer.from_dict(norm[name]) for name in ("plan", "obs")}
@@ -191,7 +197,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
             path=path, method=method, network=network.to(device).eval(),
             layout=PlanLayout.from_dict(config["layout"]), obs_keys=tuple(config.get("obs_keys", OBS_KEYS)),
             normalizers=normalizers, labels=LabelSupport.from_dict(norm.get("labels")),
-            n_points=int(config.get("n_points", 0)), config=config)
+            n_points=int(config.get("n_points", 0)), config=config, digest=hashlib.sha256(weights).hexdigest())
     except FileNotFoundError as err:
         raise CheckpointError(f"incomplete checkpoint at {path}: {Path(err.filename or WEIGHTS).name} missing. "
                               f"Remake it with:\n  {command}") from None

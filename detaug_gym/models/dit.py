@@ -84,6 +84,18 @@ def timestep_embedding(t: torch.Tensor, dim: int, max_period: float = 10_000.0) 
     return F.pad(emb, (0, dim % 2))
 
 
+class TanhGELU(nn.Module):
+    """GELU's tanh approximation, ``0.5 x (1 + tanh(u)) = x sigmoid(2u)`` with ``u = sqrt(2 / pi) (x + 0.044715
+    x^3)``: the same function as ``nn.GELU(approximate="tanh")`` (within 5e-7), 1.6x faster on one CPU thread
+    (benchmarks/detaug_latency.py), where the MLP's activation is a sixth of a replan."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x * torch.sigmoid(GELU_TANH_SCALE * (x + 0.044715 * x * x * x))
+
+
+GELU_TANH_SCALE = 2.0 * math.sqrt(2.0 / math.pi)
+
+
 def _zero(layer: nn.Linear) -> nn.Linear:
     nn.init.zeros_(layer.weight)
     nn.init.zeros_(layer.bias)
@@ -116,7 +128,7 @@ class AdaLNZeroBlock(nn.Module):
         self.norm1 = nn.LayerNorm(d_model, elementwise_affine=False, eps=1e-6)
         self.attn = SelfAttention(d_model, n_heads)
         self.norm2 = nn.LayerNorm(d_model, elementwise_affine=False, eps=1e-6)
-        self.mlp = nn.Sequential(nn.Linear(d_model, hidden), nn.GELU(approximate="tanh"), nn.Linear(hidden, d_model))
+        self.mlp = nn.Sequential(nn.Linear(d_model, hidden), TanhGELU(), nn.Linear(hidden, d_model))
         self.modulation = nn.Sequential(nn.SiLU(), _zero(nn.Linear(d_model, 6 * d_model)))
 
     def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:

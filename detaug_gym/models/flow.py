@@ -107,11 +107,11 @@ def remaining_steps(total_steps: int, t_start: float) -> int:
     return max(1, round((1.0 - t_start) * total_steps))
 
 
-@torch.no_grad()
 def sample(velocity: VelocityFn, shape: tuple[int, ...], *, steps: int = 10, t_start: float = 0.0,
            x_start: torch.Tensor | None = None, inpaint: Inpaint | None = None,
            guidance: Guidance | None = None, generator: torch.Generator | None = None,
-           dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> torch.Tensor:
+           noise: torch.Tensor | None = None, dtype: torch.dtype = torch.float32,
+           device: torch.device | str = "cpu") -> torch.Tensor:
     """Integrate the flow from ``t_start`` to 1 and return normalised plans ``shape`` = (B, H, D).
 
     Args:
@@ -124,9 +124,19 @@ def sample(velocity: VelocityFn, shape: tuple[int, ...], *, steps: int = 10, t_s
         guidance: optional gradient guidance (late steps only).
         generator: source of the initial noise, for reproducible plans: a CPU generator, so a seed gives the
             same noise on every device.
+        noise: the initial noise ``shape`` itself (drawn by the caller), instead of drawing it here.
         device: where ``velocity`` runs (``x_start`` and ``inpaint`` must be there too).
+
+    Runs under ``torch.inference_mode`` (``no_grad`` with guidance, whose step needs autograd).
     """
-    noise = torch.randn(shape, generator=generator, dtype=dtype).to(device)
+    with torch.no_grad() if guidance is not None else torch.inference_mode():
+        if noise is None:
+            noise = torch.randn(shape, generator=generator, dtype=dtype)
+        return _integrate(velocity, shape, steps, t_start, x_start, inpaint, guidance, noise.to(device), dtype,
+                          device)
+
+
+def _integrate(velocity, shape, steps, t_start, x_start, inpaint, guidance, noise, dtype, device):
     if x_start is not None:
         x = interpolate(noise, x_start.to(dtype).expand(shape),
                         torch.full((shape[0],), t_start, dtype=dtype, device=device))

@@ -27,9 +27,10 @@ import numpy as np
 import torch
 
 from detaug_gym.actions import GRIPPER_CLOSE, GRIPPER_OPEN
+from detaug_gym.models.batching import PlanBatcher, PlanRequest, run_requests
 from detaug_gym.models.checkpoint import Checkpoint, load_checkpoint, resolve_device
 from detaug_gym.models.dataset import observation_vector
-from detaug_gym.models.flow import Guidance, Inpaint, remaining_steps, sample
+from detaug_gym.models.flow import Guidance, Inpaint, remaining_steps
 from detaug_gym.policies.options import FlowOptions
 
 DEFAULT_ACTION_STEPS = 10  # the paper's replan period N, for checkpoints whose config.json names none
@@ -87,6 +88,7 @@ class FlowPolicy:
         self._plan: np.ndarray | None = None
         self._plan_step = -1
         self._warned_suite = False
+        self._batcher: PlanBatcher | None = None
         self.generator = torch.Generator()
         self.reset(options.seed)
 
@@ -193,14 +195,18 @@ class FlowPolicy:
                                            cost=lambda x, t: user_cost(norm["plan"].unnormalize(x.cpu()), t))
         with torch.no_grad():
             extra = net.extra(*(None if p is None else p.to(dev) for p in (points, point_mask)))
-
-        def velocity(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-            return net.dit(x, t, obs_cond, label, extra)
-
         steps = steps or (self.flow_steps if init_plan is None else remaining_steps(self.flow_steps, t_start))
-        x = sample(velocity, shape, steps=steps, t_start=t_start, x_start=x_start, inpaint=inpaint,
-                   guidance=guidance, generator=generator or self.generator, device=dev)
+        noise = torch.randn(shape, generator=generator or self.generator).to(dev)
+        weights = (self.checkpoint.digest or id(net), str(dev))
+        request = PlanRequest(net, weights, obs_cond, label, extra, inpaint, noise, x_start, t_start, steps, guidance)
+        x = run_requests([request])[0] if self._batcher is None else self._batcher.submit(request)
         return norm["plan"].unnormalize(x.cpu())
+
+    def share_planner(self, batcher: PlanBatcher | None) -> None:
+        """Plan through ``batcher`` (None: alone): the bench's vector rollout gives the policies of its envs one
+        :class:`~detaug_gym.models.batching.PlanBatcher`, so those that replan at the same step share one
+        network call (:func:`detaug_gym.policies.act_batch`)."""
+        self._batcher = batcher
 
     def _label_tensor(self, labels, k: int) -> torch.Tensor | None:
         if labels is None:

@@ -13,6 +13,7 @@ Each policy's options are a dataclass in :mod:`detaug_gym.policies.options`.
 from detaug_gym.policies.base import (
     Policy,
     PolicySpec,
+    act_batch,
     available_policies,
     load,
     make_policy,
@@ -21,6 +22,7 @@ from detaug_gym.policies.base import (
     policy_class,
     policy_options_class,
     register_policy,
+    share_planner,
 )
 
 _OPTIONS = "detaug_gym.policies.options"
@@ -42,6 +44,7 @@ register_policy("demogen", "detaug_gym.policies.demogen:DemoGenPolicy", "DemoGen
 __all__ = [
     "Policy",
     "PolicySpec",
+    "act_batch",
     "available_policies",
     "load",
     "make_policy",
@@ -50,4 +53,5 @@ __all__ = [
     "policy_class",
     "policy_options_class",
     "register_policy",
+    "share_planner",
 ]

@@ -62,7 +62,7 @@ import numpy as np
 from detaug_gym.actions import CONTROL_DT, POS_SCALE, action_to_goal
 from detaug_gym.geometry.ellipsoid import min_volume_ellipsoid
 from detaug_gym.geometry.obstacle_view import has_obstacle, obstacle_frame, obstacle_shape
-from detaug_gym.policies.base import make_policy, policy_class
+from detaug_gym.policies.base import make_policy, policy_class, share_planner
 from detaug_gym.policies.options import AegisOptions
 from detaug_gym.rotations import quat_xyzw_to_mat
 
@@ -152,6 +152,12 @@ class CBFFilter:
         if len(self.end_effector.semi_axes) != 3 or min(self.end_effector.semi_axes) <= 0:
             raise ValueError(f"end-effector semi-axes must be 3 positive lengths, got {self.end_effector.semi_axes}")
         self.alpha, self.dt = float(alpha), float(dt)
+        self._qp = BarrierQP()
+
+    def reset(self) -> None:
+        """A fresh QP workspace: OSQP warm-starts each solve from the last one, so a workspace kept from the
+        previous episode would make this episode's actions depend (at solver tolerance) on which episode ran
+        before it in the process."""
         self._qp = BarrierQP()
 
     # ------------------------------------------------------------------ obstacle
@@ -275,7 +281,12 @@ class AegisPolicy:
         from detaug_gym.rollout import reset_policy
 
         reset_policy(self.policy, seed, context)
+        self.filter.reset()
         self.diagnostics = []
+
+    def share_planner(self, batcher) -> None:
+        """Hand a shared plan batcher to the wrapped policy (when it plans with a network)."""
+        share_planner(self.policy, batcher)
 
     def episode_summary(self) -> dict:
         """Filtered steps, how many the filter changed (interventions), infeasible QPs, and the wrapped

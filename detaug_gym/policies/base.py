@@ -8,6 +8,8 @@ A policy drives one environment. The bench (the only rollout loop in the project
     policy.belief(obs)                         # optional: what it expected of its last action (a plan's
                                                # joints, a predicted cost) and how it judges obs, the state
                                                # that action led to; read at the first collision
+    policy.share_planner(batcher)              # optional: plan through a shared PlanBatcher (flow policies;
+                                               # a wrapper such as AEGIS hands it to the policy it wraps)
 
 ``context`` is the :class:`~detaug_gym.rollout.EpisodeContext` (env id, suite, level, task index, key and
 instruction); a policy may ignore it, and one whose ``reset`` takes only ``seed`` still works.
@@ -20,6 +22,11 @@ need it accept and ignore it) and a policy fails in its constructor, not mid-rol
 Chunking policies (the flow-matching ones) plan ``horizon`` steps, execute the first ``action_steps`` of
 the plan from an internal queue and replan when the queue runs dry; ``reset`` clears the queue.
 
+A policy object is one episode's state. Several envs stepped together (the bench's ``--envs-per-worker``) use
+one policy object each and :func:`act_batch`: with a shared :class:`~detaug_gym.models.batching.PlanBatcher`,
+the policies that replan at the same step integrate their plans in one batched network call; a policy
+without ``share_planner`` simply acts on its own.
+
 Methods register themselves with :func:`register_policy` using a *string* import path, so that
 ``import detaug_gym.policies`` stays light and torch/MuJoCo-heavy modules load only when a policy of
 that kind is made. The entry also names the policy's options dataclass (:mod:`detaug_gym.policies.options`),
@@ -30,8 +37,9 @@ importing the policy.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -50,6 +58,33 @@ class Policy(Protocol):
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         """Return the next action, shape ``(7,)`` float32, for the observation of one env."""
+
+
+def act_batch(policies: Sequence[Policy], observations: Sequence[dict[str, np.ndarray]],
+              batcher=None) -> list[np.ndarray | BaseException]:
+    """One action per (policy, observation) pair: ``policies[i].act(observations[i])``.
+
+    With ``batcher`` (a :class:`~detaug_gym.models.batching.PlanBatcher` the policies were given with
+    ``share_planner``) the calls run together and their replans share network calls. An ``act`` that raises
+    gives its exception in its place, so one broken episode does not stop the others.
+    """
+    if batcher is None or len(policies) == 1:
+        out: list[np.ndarray | BaseException] = []
+        for policy, obs in zip(policies, observations):
+            try:
+                out.append(policy.act(obs))
+            except Exception as exc:  # noqa: BLE001  (recorded by the caller)
+                out.append(exc)
+        return out
+    return batcher.run_all([partial(policy.act, obs) for policy, obs in zip(policies, observations)])
+
+
+def share_planner(policy: Policy, batcher) -> bool:
+    """Give ``policy`` the shared ``batcher`` when it plans with a network; returns whether it took it."""
+    hook = getattr(policy, "share_planner", None)
+    if callable(hook):
+        hook(batcher)
+    return callable(hook)
 
 
 @dataclass(frozen=True)

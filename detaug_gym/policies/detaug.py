@@ -166,11 +166,13 @@ class DetAugPolicy(FlowPolicy):
         return plans[best].numpy()
 
     def score(self, plans: torch.Tensor, obs: Mapping[str, np.ndarray]) -> np.ndarray:
-        """(K,) collision cost of plans (K, H, D) against the observed obstacle (0 without one)."""
+        """(K,) collision cost of plans (K, H, D) against the observed obstacle (0 without one), in float32: 25 %
+        faster than float64 and within 1e-5 m of it, far below the SDF grid's own error (benchmarks/
+        detaug_latency.py); a plan that clears the inflated obstacle costs exactly 0 either way."""
         if not has_obstacle(obs):
             return np.zeros(len(plans))
-        with torch.no_grad():
-            return self._plan_cost(plans.double(), dict(obs)).numpy()
+        with torch.no_grad():  # not inference_mode: the geometry caches tensors that guidance differentiates
+            return self._plan_cost(plans.float(), dict(obs)).double().numpy()
 
     def _plan_cost(self, plans: torch.Tensor, obs: dict[str, np.ndarray]) -> torch.Tensor:
         """(...) cost of plans (..., H, D): the robot's points, plus the held object's sphere if enabled."""
