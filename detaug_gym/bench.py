@@ -82,7 +82,7 @@ class BenchConfig:
     """Torch threads per worker."""
     envs_per_worker: int = 1
     """Episodes each worker steps together, one env each; flow policies that replan at the same step plan in
-    one batched network call (the records are the same as one at a time, docs/performance.md)."""
+    one batched network call (the same records as one at a time to float32 rounding, docs/performance.md)."""
     device: str = "cpu"
     """Torch device of the flow policies' networks: cpu, cuda, cuda:N or auto (a method option device=... wins)."""
     backend: Literal["local", "ray"] = "local"

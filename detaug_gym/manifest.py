@@ -23,7 +23,10 @@ from detaug_gym.seeds import EPISODE_SCHEME
 
 MANIFEST = "run.json"
 # Config fields that change what an episode is (with their value in folders written before they existed).
-EPISODE_FIELDS = {"scenarios": "procedural", "settle": "steps", "step_limits": "suite"}
+# --envs-per-worker and --device change a flow policy's arithmetic at float32 rounding, which a closed loop can
+# grow into another rollout (docs/performance.md); --backend and --workers do not.
+EPISODE_FIELDS = {"scenarios": "procedural", "settle": "steps", "step_limits": "suite", "envs_per_worker": 1,
+                  "device": "cpu"}
 CHECKPOINT_FILES = ("model.pt", "config.json", "normalization.json")
 
 

@@ -94,3 +94,13 @@ def test_act_batch_shares_network_calls_and_isolates_failures(obs):
     assert isinstance(actions[1], Exception) and all(isinstance(actions[i], np.ndarray) for i in (0, 2))
     np.testing.assert_allclose(actions[0], actions[2], atol=1e-5)  # same seed and observation: same plan
     assert not share_planner(make_policy("scripted"), batcher)
+
+
+def test_a_folder_refuses_a_rerun_in_another_batching(tmp_path):
+    """Batching changes a flow policy's float32 arithmetic, so --envs-per-worker is part of what an episode is."""
+    cfg = dict(methods=["random"], suites=["newton"], levels=["2"], episodes=2, out=str(tmp_path),
+               env_kwargs=["max_episode_steps=5"])
+    bench.run(bench.BenchConfig(**cfg))
+    with pytest.raises(SystemExit, match="--envs-per-worker differs: the folder's episodes ran with 1, this run asks "
+                                         "for 2"):
+        bench.run(bench.BenchConfig(**cfg, envs_per_worker=2))
