@@ -64,9 +64,9 @@ def agreement(a: dict, b: dict) -> tuple[int, int, float]:
 def batched_table(root: Path, episodes: int, envs: int, seed: int) -> None:
     common = dict(suites=["spatial"], levels=["2"], episodes=episodes, seeds=[seed], workers=1)
     print(f"\nEpisodes per core-hour, Spatial L2, {episodes} episodes per method (bench seed {seed}), one process")
-    print(f"| method | 1 env: ep / core-h | {envs} envs: ep / core-h | speed-up | wall s (1 / {envs}) | "
-          f"identical records | same outcome | max clearance gap (m) |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    print(f"| method | 1 env: ep / core-h | {envs} envs: ep / core-h | speed-up | CPU ms per env step (1 / {envs}) | "
+          f"wall s (1 / {envs}) | identical records | same outcome | max clearance gap (m) |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for method in METHODS:
         runs = {}
         for n in (1, envs):
@@ -75,8 +75,10 @@ def batched_table(root: Path, episodes: int, envs: int, seed: int) -> None:
             runs[n] = (wall, cpu, _records(out))
         (w1, c1, r1), (wn, cn, rn) = runs[1], runs[envs]
         same, outcome, gap = agreement(r1, rn)
+        steps1, stepsn = (sum(r["steps"] for r in recs.values()) for recs in (r1, rn))
         print(f"| {method} | {episodes / c1 * 3600:.0f} | {episodes / cn * 3600:.0f} | {c1 / cn:.2f} | "
-              f"{w1:.0f} / {wn:.0f} | {same}/{episodes} | {outcome}/{episodes} | {gap:.1e} |")
+              f"{1e3 * c1 / steps1:.1f} / {1e3 * cn / stepsn:.1f} | {w1:.0f} / {wn:.0f} | {same}/{episodes} | "
+              f"{outcome}/{episodes} | {gap:.1e} |")
 
 
 def ray_table(root: Path, episodes: int, seed: int) -> None:
