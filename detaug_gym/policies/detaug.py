@@ -59,6 +59,9 @@ class DetAugPolicy(FlowPolicy):
         held_object: also score the object in the hand (:func:`detaug_gym.geometry.held_object_cost`).
         inflate: metres the obstacle is inflated by for the penetration score (the scorer's model error;
             0 and ``held_object=False`` together are the paper's score).
+        tiebreak_margin: metres beyond ``inflate``; among plans of equal (lowest) cost the one penetrating least
+            into the obstacle inflated by this much more wins, before the least bent (0: the least bent, as
+            the paper's selection).
         action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
 
     Every option, its type and its range are :class:`~detaug_gym.policies.options.DetAugOptions`.
@@ -69,11 +72,11 @@ class DetAugPolicy(FlowPolicy):
     def __init__(self, suite: str = "spatial", checkpoint: str | None = None, k: int = 32, latch: bool = False,
                  labels: str = "random", cost: str = "penetration", mode: str = "select",
                  guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,
-                 inflate: float = 0.015, **options) -> None:
+                 inflate: float = 0.015, tiebreak_margin: float = 0.0, **options) -> None:
         opts = DetAugOptions.from_kwargs(suite=suite, checkpoint=checkpoint, k=k, latch=latch, labels=labels,
                                          cost=cost, mode=mode, guidance_scale=guidance_scale,
                                          guidance_t_min=guidance_t_min, held_object=held_object, inflate=inflate,
-                                         **options)
+                                         tiebreak_margin=tiebreak_margin, **options)
         ckpt = load_checkpoint(opts.checkpoint or zoo_dir("detaug", opts.suite))
         if not ckpt.network.config.dit.label_dim:
             raise ValueError(f"{ckpt.path} was trained without labels ({ckpt.method!r}); DetAug needs a "
@@ -84,7 +87,7 @@ class DetAugPolicy(FlowPolicy):
         self.k, self.latch, self.label_source, self.cost_kind, self.mode = (opts.k, opts.latch, opts.labels,
                                                                             opts.cost, opts.mode)
         self.guidance_scale, self.guidance_t_min = opts.guidance_scale, opts.guidance_t_min
-        self.held_object, self.inflate = opts.held_object, opts.inflate
+        self.held_object, self.inflate, self.tiebreak_margin = opts.held_object, opts.inflate, opts.tiebreak_margin
         self.diagnostics: list[ReplanDiagnostics] = []
         self._latched: np.ndarray | None = None
         self._rng = np.random.default_rng()
@@ -157,7 +160,13 @@ class DetAugPolicy(FlowPolicy):
         plans = self.plan(obs, labels, num_samples=k, guidance=guidance)
         costs = self.score(plans, obs)
         norms = np.zeros(k) if labels is None else np.linalg.norm(labels, axis=1)
-        best = int(np.lexsort((norms, np.round(costs, 6)))[0])  # lowest cost, then least bent
+        keys = [norms, np.round(costs, 6)]  # lowest cost, then least bent
+        tied = np.round(costs, 6) == np.round(costs, 6).min()
+        if self.tiebreak_margin > 0.0 and has_obstacle(obs) and tied.sum() > 1:
+            wide = np.full(k, np.inf)
+            wide[tied] = self.score(plans[torch.from_numpy(tied)], obs, self.inflate + self.tiebreak_margin)
+            keys.insert(1, np.round(wide, 6))  # lowest cost, then least into the wider margin, then least bent
+        best = int(np.lexsort(keys)[0])
         chosen = labels[best] if labels is not None else np.zeros(self.label_dim, np.float32)
         self.diagnostics.append(ReplanDiagnostics(chosen, float(costs[best]), float(np.median(costs)), k,
                                                   float(np.mean(costs <= 0.0))))
@@ -165,21 +174,22 @@ class DetAugPolicy(FlowPolicy):
             self._latched = chosen
         return plans[best].numpy()
 
-    def score(self, plans: torch.Tensor, obs: Mapping[str, np.ndarray]) -> np.ndarray:
-        """(K,) collision cost of plans (K, H, D) against the observed obstacle (0 without one), in float32: 25 %
-        faster than float64 and within 1e-5 m of it, far below the SDF grid's own error (benchmarks/
-        detaug_latency.py); a plan that clears the inflated obstacle costs exactly 0 either way."""
+    def score(self, plans: torch.Tensor, obs: Mapping[str, np.ndarray], inflate: float | None = None) -> np.ndarray:
+        """(K,) collision cost of plans (K, H, D) against the observed obstacle inflated by ``inflate`` (default
+        the policy's; 0 without an obstacle), in float32: 25 % faster than float64 and within 1e-5 m of it, far
+        below the SDF grid's own error (benchmarks/detaug_latency.py); a plan that clears the inflated obstacle
+        costs exactly 0 either way."""
         if not has_obstacle(obs):
             return np.zeros(len(plans))
         with torch.no_grad():  # not inference_mode: the geometry caches tensors that guidance differentiates
-            return self._plan_cost(plans.float(), dict(obs)).double().numpy()
+            return self._plan_cost(plans.float(), dict(obs), inflate).double().numpy()
 
-    def _plan_cost(self, plans: torch.Tensor, obs: dict[str, np.ndarray]) -> torch.Tensor:
-        """(...) cost of plans (..., H, D): the robot's points, plus the held object's sphere if enabled."""
+    def _plan_cost(self, plans: torch.Tensor, obs: dict[str, np.ndarray], inflate: float | None = None) -> torch.Tensor:
+        """(...) cost of plans (..., H, D): the robot's points, plus the held object's points if enabled."""
         from detaug_gym.geometry import held_object_cost, obstacle_sdf, plan_collision_cost
 
         sdf = obstacle_sdf(obs)
-        margin = self.inflate if self.cost_kind == "penetration" else None
+        margin = (self.inflate if inflate is None else inflate) if self.cost_kind == "penetration" else None
         cost = plan_collision_cost(plans[..., self.layout.key_slice("robot_joint_pos")], obs, kind=self.cost_kind,
                                    sdf=sdf, margin=margin)
         if self.held_object:

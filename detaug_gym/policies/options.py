@@ -176,11 +176,15 @@ class DetAugOptions(FlowOptions):
     """Metres the obstacle is inflated by before penetration is scored (>= 0): the scorer's measured model
     error (benchmarks/scorer_fidelity.py); 0 is the paper's score. Penetration-only still: a plan that stays
     this far off costs nothing, however close it passes beyond that."""
+    tiebreak_margin: float = 0.0
+    """Metres beyond inflate (>= 0): among the plans of equal lowest cost, the one that penetrates least into the
+    obstacle inflated by this much more wins before the least bent (0: the least bent, the paper's rule)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _require(self.k >= 1, f"k must be >= 1, got {self.k}")
         _require(self.inflate >= 0.0, f"inflate must be >= 0 (metres), got {self.inflate}")
+        _require(self.tiebreak_margin >= 0.0, f"tiebreak_margin must be >= 0 (metres), got {self.tiebreak_margin}")
         _check_guidance(self.guidance_scale, self.guidance_t_min)
 
 
