@@ -119,3 +119,29 @@ def test_belief_reports_the_selected_plan_and_its_candidates(checkpoint):
     third = policy.belief()
     assert third["plan_age"] == 1 and third["label_change"] == pytest.approx(
         float(np.linalg.norm(policy.diagnostics[-1].label - policy.diagnostics[-2].label)))
+
+
+def test_tiebreak_margin_prefers_the_plan_furthest_into_the_clear(checkpoint):
+    """Among equal lowest costs, ``tiebreak_margin`` picks the candidate least inside the wider margin; without it
+    the least bent wins."""
+    path, obs = checkpoint
+    near = _with_obstacle_at_hand(obs)
+    offset = np.array([0.0, 0.0, 0.8], np.float32)  # the box 80 cm above the hand: clear of the 1.5 cm inflation
+    near.update(obstacle_points=near["obstacle_points"] + offset,
+                obstacle_pose=near["obstacle_pose"] + np.r_[offset, 0, 0, 0, 0].astype(np.float32))
+    for margin in (0.0, 1.0):
+        policy = DetAugPolicy(checkpoint=path, k=8, seed=0, tiebreak_margin=margin)
+        policy.reset(seed=5)
+        labels = policy.sample_labels(near, 8)
+        candidates = policy.plan(near, labels)
+        policy.reset(seed=5)  # the same labels and noise again
+        chosen = torch.as_tensor(policy.next_plan(near))
+        costs, wide = policy.score(candidates, near), policy.score(candidates, near, policy.inflate + 1.0)
+        tied = np.flatnonzero(np.round(costs, 6) == np.round(costs, 6).min())
+        index = int(np.flatnonzero([torch.equal(chosen, c) for c in candidates])[0])
+        assert index in tied
+        if margin:
+            assert wide[index] == pytest.approx(wide[tied].min())
+        else:
+            assert np.linalg.norm(labels[index]) == pytest.approx(np.linalg.norm(labels[tied], axis=1).min())
+    assert len(tied) > 1 and len(set(np.round(wide[tied], 6))) > 1  # a real tie, broken two ways
