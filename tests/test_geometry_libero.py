@@ -57,7 +57,9 @@ def test_obstacle_sdf_and_costs_on_the_observation(libero):
     sdf = obstacle_sdf(obs)
     on_surface = sdf(torch.tensor(obs["obstacle_points"], dtype=torch.float64))
     assert on_surface.max() < sdf.grid.spacing  # on the hull (or inside it, from concave parts)
-    assert np.all(sdf.exact(obs["obstacle_points"]) < 1e-9)
+    # the hull is built from the exact local samples (obstacle_local_points); the world points are their float32
+    # roundings, so they lie on or inside it to float32 precision
+    assert np.all(sdf.exact(obs["obstacle_points"]) < 1e-6)
     centroid = torch.tensor(obs["obstacle_points"].mean(axis=0), dtype=torch.float64)
     assert sdf(centroid) < 0
     robot = RobotGeometry.from_model(env.scene.model)
