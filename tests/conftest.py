@@ -5,6 +5,12 @@ import os
 
 import numpy as np
 import pytest
+from hypothesis import settings
+
+# The same hypothesis examples every run (a fixed seed per test), so CI cannot turn red on a new random draw;
+# an edge case found by exploring goes in as an @example.
+settings.register_profile("derandomized", derandomize=True)
+settings.load_profile("derandomized")
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from detaug_gym.actions import action_to_goal
@@ -48,7 +48,12 @@ quats = st.tuples(*[st.floats(-1.0, 1.0)] * 4).filter(lambda q: np.linalg.norm(q
 
 @settings(max_examples=150, deadline=None)
 @given(action=actions, offset=offsets, quat=quats)
+@example(action=np.array([1, 1, -1, 0, 0, 1, -1], np.float32), offset=np.zeros(3), quat=np.array([1, 0, -0.75, 0]))
+@example(action=np.array([0, 0, -1, 0, 0, 0, -1], np.float32), offset=np.zeros(3), quat=np.array([0, 0, 0, 1.0]))
 def test_filter_never_makes_the_commanded_pose_less_safe(action, offset, quat):
+    """The examples were found by hypothesis: the grip site at the obstacle's centre, deep inside it (h < 0), where
+    the nominal can already be the fastest escape the action box allows (nothing to correct) and the linear
+    constraint no longer bounds how the true barrier compares with the nominal's."""
     obs = box_observation(eef=OBSTACLE_POS + offset, eef_quat=quat)
     filtered, step = FILTER(action, obs)
     h_nominal, h_filtered = commanded_barrier(action, obs), commanded_barrier(filtered, obs)
@@ -57,12 +62,19 @@ def test_filter_never_makes_the_commanded_pose_less_safe(action, offset, quat):
     if not step.active:
         assert filtered is action
         return
-    assert step.correction > 0.0
     if step.feasible:  # h is convex in the centre, so the linear constraint bounds the true barrier
+        assert step.correction > 0.0
         assert h_filtered >= (1.0 - FILTER.alpha * FILTER.dt) * step.h - 1e-6
-        assert h_filtered >= h_nominal - 1e-6  # never a larger violation than the proposal's
         if step.h >= 0.0:
+            assert h_filtered >= h_nominal - 1e-6  # never a larger violation than the proposal's
             assert h_filtered >= -1e-6  # a safe pose stays safe
+
+
+def test_at_a_vanishing_gradient_the_filter_escapes_upwards():
+    from detaug_gym.policies.aegis import _escape
+
+    np.testing.assert_array_equal(_escape(np.array([0.3, 0.0, -1.0]), np.zeros(3)), [0.0, 0.0, 1.0])
+    np.testing.assert_array_equal(_escape(np.array([0.3, 0.0, -1.0]), np.array([0.0, 2.0, 0.0])), [0.3, 1.0, -1.0])
 
 
 @settings(max_examples=60, deadline=None)

@@ -199,10 +199,10 @@ class CBFFilter:
     def solve(self, nominal: np.ndarray, g: np.ndarray, b: float) -> tuple[np.ndarray, bool]:
         """``argmin ||x - nominal||^2`` s.t. ``g . x >= b``, ``-1 <= x <= 1``, and whether it was feasible."""
         if np.abs(g).sum() < b:  # the box holds no x with g . x >= b: increase h as fast as allowed
-            return np.where(g != 0.0, np.sign(g), np.clip(nominal, -1.0, 1.0)), False
+            return _escape(nominal, g), False
         x = self._qp(nominal, g, b)
         if x is None:
-            return np.where(g != 0.0, np.sign(g), np.clip(nominal, -1.0, 1.0)), False
+            return _escape(nominal, g), False
         # OSQP meets constraints to ~1e-9; nudge along g (staying in the box) so g . x >= b holds exactly.
         for _ in range(3):
             gap = b - g @ x
@@ -212,6 +212,15 @@ class CBFFilter:
             step = np.where(free, g, 0.0)
             x = np.clip(x + (gap + 1e-12) * step / max(step @ g, 1e-18), -1.0, 1.0)
         return x, True
+
+
+def _escape(nominal: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """The infeasible case's action: full speed up the barrier's gradient ``g`` (the nominal where a component of
+    ``g`` is 0). At the ellipsoid's centre ``g`` vanishes and no direction is better than another: then straight
+    up, the one direction that cannot run into the table."""
+    if not np.any(g != 0.0):
+        return np.array([0.0, 0.0, 1.0])
+    return np.where(g != 0.0, np.sign(g), np.clip(nominal, -1.0, 1.0))
 
 
 class BarrierQP:
