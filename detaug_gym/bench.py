@@ -340,13 +340,13 @@ _CACHE: dict = {}
 def group_jobs(jobs: list[Job], size: int) -> list[tuple[Job, ...]]:
     """Consecutive jobs of one (method, cell, seed, env options, rendering) in groups of up to ``size``: the
     episodes a worker steps together (``--envs-per-worker``)."""
+    def kind(job: Job) -> tuple:
+        return job.key.method, job.key.env_id, job.run_seed, job.env_kwargs, job.video is not None
+
     groups: list[list[Job]] = []
     for job in jobs:
-        kind = (job.key.method, job.key.env_id, job.run_seed, job.env_kwargs, job.video is not None)
-        last = groups[-1] if groups else None
-        if last and len(last) < size and (last[0].key.method, last[0].key.env_id, last[0].run_seed,
-                                          last[0].env_kwargs, last[0].video is not None) == kind:
-            last.append(job)
+        if groups and len(groups[-1]) < size and kind(groups[-1][0]) == kind(job):
+            groups[-1].append(job)
         else:
             groups.append([job])
     return [tuple(g) for g in groups]

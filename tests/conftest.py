@@ -41,3 +41,16 @@ def tiny_base_checkpoint(tmp_path_factory):
 def tiny_detaug_checkpoint(tmp_path_factory):
     """A tiny ``detaug`` checkpoint with 4-dim labels."""
     return train_tiny(tmp_path_factory.mktemp("tiny_detaug"), "detaug", steps=60, label_dim=4)
+
+
+@pytest.fixture(scope="session")
+def spatial_l2_obs():
+    """The first observation of a real SafeLibero-Spatial-L2 episode (task 0, seed 5), obstacle in view."""
+    import gymnasium as gym
+
+    import detaug_gym  # noqa: F401  (registers the envs)
+
+    env = gym.make("SafeLibero-Spatial-L2-v0")
+    first, _ = env.reset(seed=5, options={"task": 0})
+    env.close()
+    return first

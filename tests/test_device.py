@@ -14,15 +14,8 @@ NO_CUDA = not torch.cuda.is_available()
 
 
 @pytest.fixture(scope="module")
-def obs():
-    import gymnasium as gym
-
-    import detaug_gym  # noqa: F401  (registers the envs)
-
-    env = gym.make("SafeLibero-Spatial-L2-v0")
-    first, _ = env.reset(seed=5, options={"task": 0})
-    env.close()
-    return first
+def obs(spatial_l2_obs):
+    return spatial_l2_obs
 
 
 def test_auto_and_cpu_give_the_same_plans(obs):

@@ -41,15 +41,8 @@ def test_batched_bench_gives_the_unbatched_records(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def obs():
-    import gymnasium as gym
-
-    import detaug_gym  # noqa: F401
-
-    env = gym.make("SafeLibero-Spatial-L2-v0")
-    first, _ = env.reset(seed=2, options={"task": 1})
-    env.close()
-    return first
+def obs(spatial_l2_obs):
+    return spatial_l2_obs
 
 
 class _Capture:

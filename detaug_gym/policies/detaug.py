@@ -160,8 +160,9 @@ class DetAugPolicy(FlowPolicy):
         plans = self.plan(obs, labels, num_samples=k, guidance=guidance)
         costs = self.score(plans, obs)
         norms = np.zeros(k) if labels is None else np.linalg.norm(labels, axis=1)
-        keys = [norms, np.round(costs, 6)]  # lowest cost, then least bent
-        tied = np.round(costs, 6) == np.round(costs, 6).min()
+        rounded = np.round(costs, 6)
+        keys = [norms, rounded]  # lowest cost, then least bent
+        tied = rounded == rounded.min()
         if self.tiebreak_margin > 0.0 and has_obstacle(obs) and tied.sum() > 1:
             wide = np.full(k, np.inf)
             wide[tied] = self.score(plans[torch.from_numpy(tied)], obs, self.inflate + self.tiebreak_margin)
