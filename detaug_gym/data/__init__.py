@@ -8,10 +8,12 @@
 from detaug_gym.data.dataset import (
     Dataset,
     DatasetError,
+    DatasetSummary,
     DatasetWriter,
     Demo,
     load,
     replay,
+    summarize,
 )
 
-__all__ = ["Dataset", "DatasetError", "DatasetWriter", "Demo", "load", "replay"]
+__all__ = ["Dataset", "DatasetError", "DatasetSummary", "DatasetWriter", "Demo", "load", "replay", "summarize"]

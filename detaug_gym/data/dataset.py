@@ -189,6 +189,35 @@ def read_env_args(path: str | os.PathLike) -> dict:
     return value if isinstance(value, dict) else {}
 
 
+@dataclass(frozen=True)
+class DatasetSummary:
+    """Sizes of a dataset file, read without loading its arrays: ``demos`` (``augmented`` of them made by an
+    augmentation), ``steps`` over all demos, and demos per task (``{task: count}``)."""
+
+    demos: int
+    augmented: int
+    steps: int
+    per_task: dict[int, int]
+
+
+def summarize(path: str | os.PathLike) -> DatasetSummary:
+    """The :class:`DatasetSummary` of a dataset file (``DatasetError`` when it is not one)."""
+    path = Path(path)
+    with _open(path) as f:
+        if "data" not in f:
+            raise DatasetError(f"{path}: no 'data' group; expected LIBERO/robomimic layout data/demo_<i>/...")
+        demos = augmented = steps = 0
+        per_task: dict[int, int] = {}
+        for name in _demo_names(f["data"]):
+            group = f["data"][name]
+            demos += 1
+            augmented += bool(group.attrs.get("augmented", False))
+            steps += int(group["actions"].shape[0])
+            task = int(group.attrs.get("task", -1))
+            per_task[task] = per_task.get(task, 0) + 1
+    return DatasetSummary(demos, augmented, steps, dict(sorted(per_task.items())))
+
+
 def _read_demo(group, name: str) -> Demo:
     if "actions" not in group:
         raise KeyError("no 'actions' dataset")
