@@ -51,7 +51,8 @@ from detaug_gym.models.flow import Inpaint, flow_matching_loss
 from detaug_gym.models.network import FlowNetwork, NetworkConfig
 
 # Fields that may change when resuming with the same command (the rest must match the saved run).
-RESUMABLE_CHANGES = ("steps", "checkpoint_every", "threads", "progress", "log_every", "action_steps", "device")
+RESUMABLE_CHANGES = ("steps", "checkpoint_every", "snapshot_every", "threads", "progress", "log_every", "action_steps",
+                     "device")
 
 
 @dataclass
@@ -105,6 +106,9 @@ class TrainConfig:
     """Train only the adapter (label encoder, null token, AdaLN modulation, point encoder); needs init_from."""
     checkpoint_every: int = 1000
     """Steps between checkpoints (also written at the end and on Ctrl-C)."""
+    snapshot_every: int = 0
+    """Steps between snapshots of the EMA weights, each a loadable checkpoint folder <out>/snapshots/step_<N>/ that
+    a resumed run keeps (0: none); for learning curves (python -m detaug_gym.finetune)."""
     log_every: int = 50
     """Steps between rows of train_log.csv."""
     seed: int = 0
@@ -145,6 +149,8 @@ def check_config(cfg: TrainConfig) -> None:
     if cfg.zero_label_weight <= 0.0 or (cfg.zero_label_weight != 1.0 and cfg.method != "detaug"):
         raise SystemExit(f"error: --zero-label-weight must be > 0 and applies to --method detaug only, got "
                          f"{cfg.zero_label_weight} with --method {cfg.method}")
+    if cfg.snapshot_every < 0:
+        raise SystemExit(f"error: --snapshot-every must be >= 0 (0: no snapshots), got {cfg.snapshot_every}")
     if not 1 <= cfg.action_steps <= cfg.horizon:
         raise SystemExit(f"error: --action-steps must lie in [1, horizon = {cfg.horizon}], got {cfg.action_steps}")
     try:
@@ -305,22 +311,34 @@ class Run:
     def save(self, final: bool = False) -> dict:
         """Write the checkpoint folder (EMA weights) and the resume state; return the summary."""
         cfg, out = self.cfg, Path(self.cfg.out)
-        summary = {"steps": self.step, "final_loss": float(np.mean(self.losses[-100:])) if self.losses else None,
-                   "wall_time_s": round(self.elapsed, 1), "step_time_s": round(self.elapsed / max(1, self.step), 4),
-                   "parameters": self.network.num_parameters(), "finished": final}
-        ema = {k: v.cpu() for k, v in self.ema.state.items()}
-        save_checkpoint(out, method=cfg.method, network=self.network, ema_state=ema,
-                        layout=self.data.layout, obs_keys=OBS_KEYS, normalizers=self.data.normalizers,
-                        labels=LabelSupport(*self.data.label_bank()),
-                        n_points=cfg.n_points if cfg.method == "demogen" else 0, action_steps=cfg.action_steps,
-                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary,
-                                      "trained_on": trained_on(cfg)})
+        summary, ema = self.write_weights(out, final)
         torch_save(out / TRAIN_STATE, {
             "config": dataclasses.asdict(cfg), "model": _cpu(self.network.state_dict()),
             "optimizer": _cpu(self.optimizer.state_dict()), "schedule": self.schedule.state_dict(),
             "ema": ema, "ema_updates": self.ema.updates, "generator": self.generator.get_state(),
             "step": self.step, "elapsed": self.elapsed, "recent_losses": self.losses[-100:]})
         return summary
+
+
+    def write_weights(self, folder: Path, final: bool = False) -> tuple[dict, dict]:
+        """Write the EMA weights as a checkpoint folder (no resume state); return its summary and the weights."""
+        cfg = self.cfg
+        summary = {"steps": self.step, "final_loss": float(np.mean(self.losses[-100:])) if self.losses else None,
+                   "wall_time_s": round(self.elapsed, 1), "step_time_s": round(self.elapsed / max(1, self.step), 4),
+                   "parameters": self.network.num_parameters(), "finished": final}
+        ema = {k: v.cpu() for k, v in self.ema.state.items()}
+        save_checkpoint(folder, method=cfg.method, network=self.network, ema_state=ema,
+                        layout=self.data.layout, obs_keys=OBS_KEYS, normalizers=self.data.normalizers,
+                        labels=LabelSupport(*self.data.label_bank()),
+                        n_points=cfg.n_points if cfg.method == "demogen" else 0, action_steps=cfg.action_steps,
+                        extra_config={"train": dataclasses.asdict(cfg), "summary": summary,
+                                      "trained_on": trained_on(cfg)})
+        return summary, ema
+
+
+def snapshot_dir(out: str | Path, step: int) -> Path:
+    """The snapshot folder of ``step`` in a run's ``out`` (``--snapshot-every``)."""
+    return Path(out) / "snapshots" / f"step_{step:06d}"
 
 
 def _cpu(tree):
@@ -364,6 +382,8 @@ def train(cfg: TrainConfig) -> dict:
                 bar.set_postfix(loss=f"{mean:.4f}", lr=f"{lr:.1e}")
                 writer.writerow([run.step, f"{mean:.6f}", f"{lr:.3e}", f"{run.elapsed:.1f}"])
                 log.flush()
+            if cfg.snapshot_every and run.step % cfg.snapshot_every == 0:
+                run.write_weights(snapshot_dir(cfg.out, run.step))
             if run.step % cfg.checkpoint_every == 0 and run.step < cfg.steps:
                 run.save()
     except KeyboardInterrupt:

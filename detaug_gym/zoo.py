@@ -35,8 +35,6 @@ import json
 import os
 import shlex
 import shutil
-import subprocess
-import sys
 import time
 import tomllib
 import uuid
@@ -62,9 +60,10 @@ WIRED = {"collect": ("env", "out", "task"), "augment": ("in", "out", "mode", "pl
          "train": ("method", "data", "out", "init_from"),
          "evaluate": ("suites", "levels", "out", "episodes", "seeds")}
 CHECKPOINT_OF = {"train_base": "base", "train_detaug": "detaug", "train_demogen": "demogen"}
-# Seconds per unit, measured on the Spatial zoo on the 2-core machine with a second job beside it (the cards
-# under policies/*/spatial); collection, augmentation and evaluation scale with the suite's step limit.
-RATES = {"collect": 0.77, "recovery": 1.06, "augment_detaug": 1.08, "augment_demogen": 4.6, "train_base": 0.166,
+# Seconds per unit (demo, requested copy, training step, episode) on the 2-core machine with a second job beside
+# it: the Spatial zoo's cards (policies/*/spatial), DemoGen's augmentation from the Object build. Collection,
+# augmentation and evaluation scale with the suite's step limit.
+RATES = {"collect": 0.77, "recovery": 1.06, "augment_detaug": 1.08, "augment_demogen": 1.0, "train_base": 0.166,
          "train_detaug": 0.23, "train_demogen": 0.72, "evaluate": 4.0, "cards": 0.0}
 SPATIAL_STEPS = 220
 
@@ -365,26 +364,21 @@ def priorities(stages: dict[str, Stage]) -> dict[str, float]:
     return memo
 
 
-def schedule(todo: list[Stage], ready: set[str], running: int, jobs: int, order: dict[str, float]) -> list[Stage]:
-    """The stages of ``todo`` to start now: those whose needs are in ``ready``, longest chain first, up to the
-    free slots."""
-    startable = [s for s in todo if all(n in ready for n in s.needs)]
-    startable.sort(key=lambda s: -order[s.name])
-    return startable[:max(0, jobs - running)]
-
-
 def wall_estimate(steps: list[Step], jobs: int) -> float:
     """Wall time of the steps to run when ``jobs`` stages run at once, started as :func:`run_steps` does."""
-    stages = {s.stage.name: s.stage for s in steps}
-    order = priorities(stages)
-    todo = [s.stage for s in steps if s.action in ("run", "rebuild", "resume")]
-    ready = {s.stage.name for s in steps if s.action != "skip"} - {s.name for s in todo}
+    from detaug_gym.pipeline import Task, ready_tasks
+
+    order = priorities({s.stage.name: s.stage for s in steps})
+    todo = [Task(s.stage.name, s.stage.module, [], s.stage.needs, order[s.stage.name]) for s in steps
+            if s.action in ("run", "rebuild", "resume")]
+    estimate = {s.stage.name: s.stage.estimate_s for s in steps}
+    ready = {s.stage.name for s in steps if s.action != "skip"} - {t.name for t in todo}
     running: dict[str, float] = {}
     clock = 0.0
     while todo or running:
-        for stage in schedule(todo, ready, len(running), jobs, order):
-            todo.remove(stage)
-            running[stage.name] = clock + stage.estimate_s
+        for task in ready_tasks(todo, ready, len(running), jobs):
+            todo.remove(task)
+            running[task.name] = clock + estimate[task.name]
         if not running:
             break
         name = min(running, key=running.get)
@@ -416,82 +410,27 @@ def _clear(stage: Stage) -> None:
 
 
 def run_steps(steps: list[Step], stages: dict[str, Stage], recipe: Recipe, paths: Paths, jobs: int) -> None:
-    """Run the steps, up to ``jobs`` stages at once, each when its inputs are done; a failed stage stops the
-    build after the running ones finish (``SystemExit`` naming its log). Ctrl-C stops every stage; rerun to resume."""
-    from tqdm import tqdm
+    """Run the steps with :func:`detaug_gym.pipeline.run_tasks`, up to ``jobs`` stages at once, the longest chain
+    first; each stage's stamp says ``running`` while it runs and ``done`` once it has finished."""
+    from detaug_gym.pipeline import Task, run_tasks
 
-    todo = [s for s in steps if s.action in ("run", "rebuild", "resume")]
-    done = {s.stage.name for s in steps if s.action == "done"}
     order = priorities(stages)
-    logs = paths.work / "logs"
-    logs.mkdir(parents=True, exist_ok=True)
-    running: dict[str, tuple[subprocess.Popen, float]] = {}
-    failed: list[str] = []
-    bar = tqdm(total=len(todo), desc=f"zoo {recipe.suite}", unit="stage")
-    try:
-        while todo or running:
-            startable = [] if failed else schedule([s.stage for s in todo], done, len(running), jobs, order)
-            for stage in startable:
-                step = next(s for s in todo if s.stage is stage)
-                todo.remove(step)
-                if step.action == "rebuild":
-                    _clear(step.stage)
-                write_stamp(step.stage, "running", stages, started=time.strftime("%Y-%m-%d %H:%M:%S"))
-                tqdm.write(f"start {step.stage.name}: {step.stage.command()}  (log: {logs / step.stage.name}.log)")
-                if step.stage.module is None:
-                    tic = time.perf_counter()
-                    write_cards(stages, recipe, paths)
-                    _finish(step.stage, stages, time.perf_counter() - tic, bar, done)
-                    continue
-                env = {**os.environ, **step.stage.env, "TQDM_MININTERVAL": "10"}
-                log = open(logs / f"{step.stage.name}.log", "a")  # noqa: SIM115  (the child owns it)
-                proc = subprocess.Popen([sys.executable, "-m", step.stage.module, *step.stage.argv], stdout=log,
-                                        stderr=subprocess.STDOUT, env=env)
-                log.close()
-                running[step.stage.name] = (proc, time.perf_counter())
-            if not running and todo:
-                if failed:
-                    break
-                raise RuntimeError(f"zoo: nothing can start; waiting: {', '.join(s.stage.name for s in todo)}")
-            time.sleep(0.5)
-            for name, (proc, tic) in list(running.items()):
-                if proc.poll() is None:
-                    continue
-                del running[name]
-                if proc.returncode == 0:
-                    _finish(stages[name], stages, time.perf_counter() - tic, bar, done)
-                else:
-                    failed.append(name)
-                    tqdm.write(f"FAILED {name} (exit {proc.returncode}); last lines of {logs / name}.log:\n"
-                               + _tail(logs / f"{name}.log"))
-            if bar.postfix != (", ".join(running) or "-"):
-                bar.set_postfix_str(", ".join(running) or "-")
-    except KeyboardInterrupt:
-        for proc, _ in running.values():
-            proc.send_signal(2)
-        for proc, _ in running.values():
-            proc.wait()
-        raise SystemExit("interrupted; rerun the same command to resume") from None
-    finally:
-        bar.close()
-    if failed:
-        raise SystemExit(f"stage {', '.join(failed)} failed (logs in {logs}); fix it and rerun to resume")
+    tasks = [Task(s.stage.name, s.stage.module, s.stage.argv, s.stage.needs, order[s.stage.name], s.stage.env,
+                  call=(lambda: write_cards(stages, recipe, paths)) if s.stage.module is None else None)
+             for s in steps if s.action in ("run", "rebuild", "resume")]
+    actions = {s.stage.name: s.action for s in steps}
 
+    def start(task) -> None:
+        if actions[task.name] == "rebuild":
+            _clear(stages[task.name])
+        write_stamp(stages[task.name], "running", stages, started=time.strftime("%Y-%m-%d %H:%M:%S"))
 
-def _finish(stage: Stage, stages: dict[str, Stage], seconds: float, bar, done: set[str]) -> None:
-    from tqdm import tqdm
+    def finish(task, seconds: float) -> None:
+        write_stamp(stages[task.name], "done", stages, build=uuid.uuid4().hex[:12], seconds=round(seconds, 1),
+                    finished=time.strftime("%Y-%m-%d %H:%M:%S"))
 
-    write_stamp(stage, "done", stages, build=uuid.uuid4().hex[:12], seconds=round(seconds, 1),
-                finished=time.strftime("%Y-%m-%d %H:%M:%S"))
-    done.add(stage.name)
-    bar.update()
-    tqdm.write(f"done  {stage.name} in {seconds / 60:.1f} min (estimate {stage.estimate_s / 60:.0f} min)")
-
-
-def _tail(path: Path, lines: int = 15) -> str:
-    """The last non-blank lines of a log (progress-bar redraws split into lines)."""
-    text = path.read_text(errors="replace").replace("\r", "\n") if path.exists() else ""
-    return "\n".join([line for line in text.splitlines() if line.strip()][-lines:])
+    run_tasks(tasks, jobs, paths.work / "logs", f"zoo {recipe.suite}",
+              done={n for n, a in actions.items() if a == "done"}, on_start=start, on_finish=finish)
 
 
 # ---------------------------------------------------------------------------------------------- cards

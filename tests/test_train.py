@@ -138,7 +138,8 @@ def test_zero_label_weight_shifts_batches_to_unaugmented_windows(detaug_run):
 def test_resume_after_interruption_matches_an_uninterrupted_run(tmp_path, monkeypatch):
     data = write_synthetic_demos(tmp_path / "demos.hdf5", n_demos=3, length=16)
     base = dict(TINY, batch_size=16, d_model=32)
-    straight = TrainConfig(method="base", data=str(data), out=str(tmp_path / "straight"), steps=30, **base)
+    straight = TrainConfig(method="base", data=str(data), out=str(tmp_path / "straight"), steps=30, snapshot_every=10,
+                           **base)
     train(straight)
     resumed = replace(straight, out=str(tmp_path / "resumed"))
     real_step = train_module.train_step
@@ -159,6 +160,15 @@ def test_resume_after_interruption_matches_an_uninterrupted_run(tmp_path, monkey
     a = torch.load(tmp_path / "straight" / "model.pt")
     b = torch.load(tmp_path / "resumed" / "model.pt")
     assert all(torch.allclose(a[k], b[k], atol=1e-6) for k in a)
+    # snapshots: loadable checkpoint folders of the EMA weights at every 10th step, the same after a resume
+    for run in ("straight", "resumed"):
+        assert sorted(p.name for p in (tmp_path / run / "snapshots").iterdir()) == [
+            "step_000010", "step_000020", "step_000030"]
+    snap = load_checkpoint(train_module.snapshot_dir(tmp_path / "resumed", 20))
+    assert snap.config["summary"]["steps"] == 20
+    a20 = torch.load(train_module.snapshot_dir(tmp_path / "straight", 20) / "model.pt")
+    assert all(torch.allclose(a20[k], snap.network.state_dict()[k], atol=1e-6) for k in a20)
+    assert not all(torch.allclose(a20[k], a[k]) for k in a)
     with pytest.raises(SystemExit, match="different run"):
         train(replace(resumed, lr=1e-2))
 

@@ -177,3 +177,31 @@ def test_a_rerun_skips_a_changed_recipe_is_refused_and_rebuild_reruns_what_follo
     assert card.is_file()
     main(["build", *flags, "--dry-run"])
     assert "cards            done" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_the_finetune_experiment_trains_four_runs_and_evaluates_every_snapshot(tiny_build):
+    import torch
+
+    from detaug_gym.finetune import main as finetune
+    from detaug_gym.models import load_checkpoint
+
+    root, flags = tiny_build
+    out, figure = root / "finetune", root / "finetune.png"
+    args = ["--steps", "4", "--points", "2", "--episodes", "1", "--jobs", "2", "--recipe", str(root / "newton.toml"),
+            "--data", str(root / "data"), "--zoo", str(root / "zoo"), "--out", str(out), "--figure", str(figure)]
+    finetune(args)
+    rows = json.loads((out / "curves.json").read_text())
+    assert [(r["method"], r["mode"], r["step"]) for r in rows] == [("base", "-", 0)] + [
+        (m, mode, s) for m, mode in (("detaug", "adapter"), ("detaug", "full"), ("demogen", "adapter"),
+                                     ("demogen", "full")) for s in (2, 4)]
+    assert all(r["n"] == 1 for r in rows)
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "finetune.md").read_text().count("\n| ") == 1 + len(rows)
+    base = load_checkpoint(root / "zoo" / "base" / "newton").network.state_dict()
+    for mode, frozen in (("adapter", True), ("full", False)):
+        tuned = load_checkpoint(out / f"detaug_{mode}" / "snapshots" / "step_000004").network.state_dict()
+        assert torch.equal(base["dit.blocks.0.attn.qkv.weight"], tuned["dit.blocks.0.attn.qkv.weight"]) \
+            == frozen
+    with pytest.raises(SystemExit, match="multiple of --points"):
+        finetune(["--steps", "5", "--points", "2"])

@@ -1,0 +1,114 @@
+"""Run the project's commands as subprocesses, several at once, each when the tasks it needs are done.
+
+The zoo build (:mod:`detaug_gym.zoo`) and the fine-tuning experiment (:mod:`detaug_gym.finetune`) are chains
+of the project's own commands (collect, augment, train, bench). :func:`run_tasks` runs such a chain: up to
+``jobs`` tasks at once (each command uses one core), the ready task with the highest ``priority`` first, each
+command's output appended to ``<logs>/<name>.log`` (progress bars redrawn every 10 s), one tqdm bar over the
+tasks. Every command resumes when rerun, so a stopped pipeline loses nothing: a failed task stops the start of
+new ones and, once the running ones end, raises ``SystemExit`` with the tail of its log; Ctrl-C stops all.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+@dataclass
+class Task:
+    """One command of a pipeline: ``python -m <module> <argv>`` (or ``call()`` in this process)."""
+
+    name: str
+    module: str | None
+    argv: list[str]
+    needs: tuple[str, ...] = ()
+    priority: float = 0.0
+    env: dict[str, str] = field(default_factory=dict)
+    call: Callable[[], None] | None = None
+
+
+def ready_tasks(todo: list[Task], done: set[str], running: int, jobs: int) -> list[Task]:
+    """The tasks of ``todo`` to start now: those whose needs are ``done``, highest priority first, up to the
+    ``jobs - running`` free slots."""
+    startable = sorted((t for t in todo if all(n in done for n in t.needs)), key=lambda t: -t.priority)
+    return startable[:max(0, jobs - running)]
+
+
+def tail(path: Path, lines: int = 15) -> str:
+    """The last non-blank lines of a log (progress-bar redraws split into lines)."""
+    text = path.read_text(errors="replace").replace("\r", "\n") if path.exists() else ""
+    return "\n".join([line for line in text.splitlines() if line.strip()][-lines:])
+
+
+def run_tasks(tasks: list[Task], jobs: int, logs: Path, desc: str, done: set[str] | None = None,
+              on_start: Callable[[Task], None] | None = None,
+              on_finish: Callable[[Task, float], None] | None = None) -> None:
+    """Run ``tasks`` (their needs outside ``tasks`` must be in ``done``); see the module doc."""
+    from tqdm import tqdm
+
+    todo, done = list(tasks), set(done or ())
+    logs.mkdir(parents=True, exist_ok=True)
+    running: dict[str, tuple[subprocess.Popen, float]] = {}
+    failed: list[str] = []
+    bar = tqdm(total=len(todo), desc=desc, unit="task")
+
+    def finish(task: Task, seconds: float) -> None:
+        if on_finish is not None:
+            on_finish(task, seconds)
+        done.add(task.name)
+        bar.update()
+        tqdm.write(f"done  {task.name} in {seconds / 60:.1f} min")
+
+    try:
+        while todo or running:
+            for task in [] if failed else ready_tasks(todo, done, len(running), jobs):
+                todo.remove(task)
+                if on_start is not None:
+                    on_start(task)
+                log = logs / f"{task.name}.log"
+                if task.module is None:
+                    tqdm.write(f"start {task.name}")
+                    tic = time.perf_counter()
+                    task.call()
+                    finish(task, time.perf_counter() - tic)
+                    continue
+                prefix = "".join(f"{k}={v} " for k, v in task.env.items())
+                tqdm.write(f"start {task.name}: {prefix}python -m {task.module} {' '.join(task.argv)}  (log: {log})")
+                with open(log, "a") as out:
+                    proc = subprocess.Popen([sys.executable, "-m", task.module, *task.argv], stdout=out,
+                                            stderr=subprocess.STDOUT,
+                                            env={**os.environ, **task.env, "TQDM_MININTERVAL": "10"})
+                running[task.name] = (proc, time.perf_counter())
+            if not running and todo:
+                if failed:
+                    break
+                raise RuntimeError(f"{desc}: nothing can start; waiting: {', '.join(t.name for t in todo)}")
+            time.sleep(0.5)
+            for name, (proc, tic) in list(running.items()):
+                if proc.poll() is None:
+                    continue
+                del running[name]
+                if proc.returncode == 0:
+                    finish(next(t for t in tasks if t.name == name), time.perf_counter() - tic)
+                else:
+                    failed.append(name)
+                    tqdm.write(f"FAILED {name} (exit {proc.returncode}); last lines of {logs / name}.log:\n"
+                               + tail(logs / f"{name}.log"))
+            postfix = ", ".join(running) or "-"
+            if bar.postfix != postfix:
+                bar.set_postfix_str(postfix)
+    except KeyboardInterrupt:
+        for proc, _ in running.values():
+            proc.send_signal(2)
+        for proc, _ in running.values():
+            proc.wait()
+        raise SystemExit("interrupted; rerun the same command to resume") from None
+    finally:
+        bar.close()
+    if failed:
+        raise SystemExit(f"{', '.join(failed)} failed (logs in {logs}); fix it and rerun the same command to resume")
