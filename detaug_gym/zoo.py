@@ -14,10 +14,12 @@ with its output in ``<work>/logs/<stage>.log``::
     evaluate         python -m detaug_gym.bench     Free episodes, every method -> <work>/free/
     cards            (this module)                  a model card per checkpoint -> <zoo>/<method>/<suite>/README.md
 
-Every stage leaves a stamp (``zoo_stage.json`` in an output folder, ``<file>.zoo.json`` beside a file) with a
-key: the hash of its command and of its inputs' keys. A rerun skips a stage whose stamp says done with the key
-the recipe gives now, resumes one that was interrupted (every command resumes), and rebuilds what comes after a
-rebuilt stage. Output that the recipe no longer describes, or that the zoo did not make, is never overwritten
+Every stage leaves a stamp (``zoo_stage.json`` in an output folder, ``<file>.zoo.json`` beside a file, the cards'
+``zoo_cards.json`` beside base's) with a key: the hash of its command and of its inputs' keys, plus the build ids
+of its inputs (provenance). A rerun skips a stage whose stamp says done with the key the recipe gives now,
+resumes one that was interrupted (every command resumes), rebuilds what was built from a rebuilt stage, and
+leaves out a stage that is not built when nothing to run needs it (a fresh clone has the checkpoints, not the
+demos). Output that the recipe no longer describes, or that the zoo did not make, is never overwritten
 silently: the build stops before any work and names ``--rebuild STAGE`` (which deletes that stage's output and
 rebuilds it and everything after it).
 
@@ -231,7 +233,7 @@ def build_stages(recipe: Recipe, paths: Paths) -> dict[str, Stage]:
             outputs, stamp = [paths.work / "free"], paths.work / "free" / "zoo_stage.json"
         else:
             outputs = [ckpt[n] / "README.md" for n in CHECKPOINT_OF]
-            stamp = paths.work / "cards.zoo.json"
+            stamp = ckpt["train_base"] / "zoo_cards.json"  # committed with the cards it vouches for
         env = {"DETAUG_ZOO": str(z)} if name == "evaluate" else {}
         argv.setdefault(name, ["--suite", s, "--stages", name])  # the cards stage: this module, in process
         stages[name] = Stage(name, argv[name], outputs, stamp, NEEDS[name], estimate.get(name, 0.0), env)
@@ -307,16 +309,26 @@ class Step:
     why: str = ""
 
 
-def plan(stages: dict[str, Stage], selected: list[str], rebuild: list[str]) -> list[Step]:
+RUNS = ("run", "rebuild", "resume")
+
+
+def plan(stages: dict[str, Stage], selected: list[str] | None, rebuild: list[str]) -> list[Step]:
     """The build's steps in stage order; ``RecipeError`` (before any work) on output the recipe no longer
-    describes, on output the zoo did not make, or on a selected stage whose unselected need is not built."""
-    rebuilt: set[str] = set()
+    describes, on output the zoo did not make, or on a stage to run whose need is neither built nor selected.
+
+    A stage is rebuilt when asked (``rebuild``) or when an input is rebuilt or resumed (its content may change);
+    an input that is only made again because it is absent (the demos on a fresh clone) does not invalidate what
+    was built from it. With ``selected=None`` (every stage) a stage that is not built is run only when a stage
+    to run needs it: on a fresh clone with committed checkpoints and cards every stage is done or not needed
+    (``--stages evaluate`` repeats the Free evaluation without collecting any data).
+    """
+    changes: set[str] = set()  # stages whose output will differ from what their dependents were built from
     steps, problems = [], []
     for name in STAGES:
         stage = stages[name]
         stamp = read_stamp(stage)
         present = [p for p in stage.outputs if p.exists()]
-        if name in rebuild or (any(n in rebuilt for n in stage.needs) and (present or stamp)):
+        if name in rebuild or (any(n in changes for n in stage.needs) and (present or stamp)):
             step = Step(stage, "rebuild" if present or stamp else "run",
                         "asked for" if name in rebuild else "an input is rebuilt")
         elif stamp is None:
@@ -333,22 +345,33 @@ def plan(stages: dict[str, Stage], selected: list[str], rebuild: list[str]) -> l
             step = Step(stage, "resume", "interrupted")
         elif len(present) < len(stage.outputs):
             step = Step(stage, "rebuild", "output missing")
-        elif any((read_stamp(stages[n]) or {}).get("build", stamp["inputs"].get(n)) != stamp["inputs"].get(n)
-                 for n in stage.needs):
-            step = Step(stage, "rebuild", "an input was rebuilt since")
         else:
             step = Step(stage, "done", f"built {stamp.get('finished', '')}".strip())
-        if step.action in ("rebuild", "run", "resume"):
-            rebuilt.add(name)
+        if step.action == "resume" or (step.action in RUNS and step.why not in ("not built", "output missing")):
+            changes.add(name)
         steps.append(step)
-    for step in steps:
-        if step.action != "done" and step.stage.name not in selected:
+    by_name = {s.stage.name: s for s in steps}
+    wanted = set(STAGES if selected is None else selected)
+    for step in reversed(steps):  # dependents first: whether anything to run needs a stage that is not built
+        name = step.stage.name
+        dependents = [by_name[n] for n in STAGES if name in stages[n].needs]
+        if step.action == "done":
+            continue
+        if name not in wanted:
             step.action, step.why = "skip", f"not in --stages ({step.why})"
+        elif (selected is None and step.why == "not built" and dependents
+              and not any(d.action in RUNS for d in dependents)):
+            step.action, step.why = "skip", "not needed: what is built from it is built"
     for step in steps:
-        if step.action in ("run", "rebuild", "resume"):
-            missing = [n for n in step.stage.needs if next(s for s in steps if s.stage.name == n).action == "skip"]
+        if step.action in RUNS:
+            missing = [n for n in step.stage.needs if by_name[n].action == "skip"]
             if missing:
                 problems.append(f"{step.stage.name} needs {', '.join(missing)}, which is not built: add it to --stages")
+            stale = [n for n in STAGES if step.stage.name in stages[n].needs and step.stage.name in changes
+                     and by_name[n].action == "skip" and read_stamp(stages[n]) is not None]
+            if stale:
+                problems.append(f"{step.stage.name} would change what {', '.join(stale)} was built from: add "
+                                f"{'it' if len(stale) == 1 else 'them'} to --stages")
     if problems:
         raise RecipeError("cannot build:\n  " + "\n  ".join(problems))
     return steps
@@ -454,8 +477,8 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("build", help="build a suite's zoo from its recipe (resumable)")
     b.add_argument("--suite", required=True, help=f"suite to build: {', '.join(SUITES)}")
     b.add_argument("--recipe", default=None, help="recipe file (default policies/recipes/<suite>.toml)")
-    b.add_argument("--stages", nargs="+", default=list(STAGES), metavar="STAGE",
-                   help=f"stages to run (default all): {' '.join(STAGES)}")
+    b.add_argument("--stages", nargs="+", default=None, metavar="STAGE",
+                   help=f"stages to run (default: every stage that is not built and is needed): {' '.join(STAGES)}")
     b.add_argument("--rebuild", nargs="+", default=[], metavar="STAGE",
                    help="delete these stages' output and rebuild them and every stage after them")
     b.add_argument("--jobs", type=int, default=1, help="stages run at once (each uses one core; default 1)")
@@ -469,7 +492,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> None:
     parser = build_parser()
     ns = parser.parse_args(argv)
-    for name in [*ns.stages, *ns.rebuild]:
+    for name in [*(ns.stages or ()), *ns.rebuild]:
         if name not in STAGES:
             parser.error(f"unknown stage {name!r}; stages: {', '.join(STAGES)}")
     if ns.jobs < 1:

@@ -171,6 +171,23 @@ def test_a_rerun_skips_a_changed_recipe_is_refused_and_rebuild_reruns_what_follo
     assert (resumed["train_demogen"], resumed["evaluate"], resumed["cards"]) == ("done", "resume", "rebuild")
     stages["evaluate"].stamp.write_text(json.dumps(evaluate))
 
+    # a fresh clone: the checkpoints and their cards are committed, the demos and the evaluation are not
+    for folder in ("data", "work"):
+        (root / folder).rename(root / f"{folder}.away")
+    try:
+        fresh = {s.stage.name: (s.action, s.why) for s in plan(stages, None, [])}
+        again = {s.stage.name: s.action for s in plan(stages, ["evaluate"], [])}
+    finally:
+        for folder in ("data", "work"):
+            (root / f"{folder}.away").rename(root / folder)
+    assert {n: a for n, (a, _) in fresh.items()} == {
+        "collect": "skip", "recovery": "skip", "augment_detaug": "skip", "augment_demogen": "skip",
+        "train_base": "done", "train_detaug": "done", "train_demogen": "done", "evaluate": "skip", "cards": "done"}
+    assert fresh["collect"][1].startswith("not needed")
+    assert (again["collect"], again["evaluate"], again["cards"]) == ("skip", "run", "done")
+    with pytest.raises(RecipeError, match="collect would change what augment_detaug, augment_demogen, train_base"):
+        plan(stages, ["collect"], ["collect"])
+
     card = root / "zoo" / "base" / "newton" / "README.md"
     card.unlink()  # a deleted output is rebuilt
     main(["build", *flags, "--stages", "cards"])
