@@ -73,7 +73,7 @@ def test_a_torn_last_line_is_repaired_on_resume(tmp_path):
     assert sorted(r["episode"] for r in lines) == [0, 1, 2]  # the torn line neither survives nor eats a record
 
 
-def test_degenerate_and_bad_values_are_errors_not_empty_tables(tmp_path):
+def test_degenerate_and_bad_values_are_errors_not_empty_tables(tmp_path, monkeypatch):
     for bad in (dict(episodes=0), dict(episodes=-1), dict(workers=0), dict(threads=0), dict(video=-1)):
         with pytest.raises(ValueError, match="must be >= "):
             _config(tmp_path, **bad)
@@ -82,8 +82,11 @@ def test_degenerate_and_bad_values_are_errors_not_empty_tables(tmp_path):
         bench.run(_config(tmp_path / "file"))
     with pytest.raises(SystemExit, match="cannot create"):
         bench.run(_config(tmp_path / "file" / "sub"))
-    with pytest.raises(SystemExit, match="no checkpoint at .*policies/detaug/object"):
+    # every suite has checkpoints in the repository's zoo: an empty zoo root stands for a suite without them
+    monkeypatch.setenv("DETAUG_ZOO", str(tmp_path / "empty_zoo" / "policies"))
+    with pytest.raises(SystemExit, match="no checkpoint at .*empty_zoo/policies/detaug/object"):
         bench.run(_config(tmp_path / "x", methods=["detaug"], suites=["object"], levels=["1"]))
+    monkeypatch.delenv("DETAUG_ZOO")
     with pytest.raises(SystemExit, match="cannot run:\n  Newton-PickPlace-Cylinder-v0 rejected the env options"):
         bench.run(_config(tmp_path / "y", env_kwargs=["no_such_option=1"]))
     for argv in (["--episodes", "0"], ["--workers", "0"]):
