@@ -144,17 +144,19 @@ def table(rows: list[dict]) -> str:
 
 
 def plot(rows: list[dict], path: Path, title: str) -> None:
-    """Success (top) and collision (bottom) rate over fine-tuning steps, adapter-only (left) and full (right),
-    with 95 % Wilson bands; base is the dashed line and every curve's step 0."""
+    """Success, collision and clean-success (success without collision) rate over fine-tuning steps (rows),
+    adapter-only (left) and full (right), with 95 % Wilson bands; base is the dashed line and every curve's
+    step 0."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     base = next(r for r in rows if r["method"] == "base")
-    fig, axes = plt.subplots(2, 2, figsize=(9, 6), sharex=True, sharey="row")
+    metrics = ("success", "collision", "clean")
+    fig, axes = plt.subplots(len(metrics), 2, figsize=(9, 8.5), sharex=True, sharey="row")
     for col, mode in enumerate(("adapter", "full")):
-        for row_i, metric in enumerate(("success", "collision")):
+        for row_i, metric in enumerate(metrics):
             ax = axes[row_i, col]
             for method, colour in (("detaug", "tab:blue"), ("demogen", "tab:orange")):
                 pts = [base] + sorted((r for r in rows if r["method"] == method and r["mode"] == mode),
@@ -169,8 +171,8 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
             if row_i == 0:
                 ax.set_title("adapter only" if mode == "adapter" else "full fine-tune")
             if col == 0:
-                ax.set_ylabel(f"{metric} rate (%)")
-            if row_i == 1:
+                ax.set_ylabel("clean success (%)" if metric == "clean" else f"{metric} rate (%)")
+            if row_i == len(metrics) - 1:
                 ax.set_xlabel("fine-tuning step")
     axes[0, 0].legend(fontsize=8)
     fig.suptitle(textwrap.fill(title, 110), fontsize=9)
