@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def measure(suite: str, level: str, seeds: int) -> list[dict]:
-    env = gym.make(SUITES[suite].env_id(level))
+    env = gym.make(SUITES[suite].env_id(level, version=0))
     rows = []
     for task in range(len(env.unwrapped.tasks)):
         for seed in range(seeds):
@@ -55,14 +55,15 @@ def _q(values) -> str:
 def card(suite: str, stats: dict[str, list[dict]], seeds: int) -> str:
     spec = SUITES[suite]
     lines = [f"# SafeLibero-{suite.capitalize()}", "",
-             f"Ids: `SafeLibero-{suite.capitalize()}-L1-v0`, `-L2-v0`, `-Free-v0`. "
+             f"Ids: `SafeLibero-{suite.capitalize()}-L1-v1`, `-L2-v1` (drawn around SafeLIBERO's own obstacle "
+             "spots, `docs/scenarios.md`), `-Free-v0`, and the older `-L1-v0`, `-L2-v0` (below). "
              f"Step limit: {spec.max_steps} control steps (20 Hz). Object slots in `object_poses`: "
              f"{spec.object_slots}.", "", "| # | task (LIBERO) | L1 | L2 | Free |", "|---|---|---|---|---|"]
     for i, t in enumerate(spec.tasks):
         marks = ["x" if i in spec.level_tasks.get(lv, range(len(spec.tasks))) else "" for lv in ("L1", "L2")]
         lines.append(f"| {i} | {t.language} (`{t.libero_suite}` #{t.libero_index}) | {marks[0]} | {marks[1]} | x |")
     lines += ["", "Task indices of a level are positions in its own list (`env.unwrapped.tasks`).", "",
-              "## Obstacle placement", "",
+              "## Obstacle placement of the -v0 ids", "",
               f"- One of SafeLIBERO's six obstacles per episode, drawn from the seed. Level 1: footprint gap "
               f"{L1_GAP[0]:.2f}-{L1_GAP[1]:.2f} m from the object to pick, any direction, no overlap with "
               "other objects. Level 2: on the straight motion path, carry segment (pick -> place) when it "

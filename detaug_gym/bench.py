@@ -101,6 +101,9 @@ class BenchConfig:
     scenarios: Literal["procedural", "official"] = "procedural"
     """procedural (an obstacle placed from the seed on LIBERO's scenes) or official (SafeLIBERO's own episodes from
     --safelibero-root; --episodes then counts per task, 50 = all)."""
+    scenario_version: int | None = None
+    """Procedural scenario version of the L1/L2 ids: 1 (calibrated to the official scenarios, the default) or 0
+    (the -v0 scenarios the tables before 2026-12-04 were measured on)."""
     safelibero_root: str | None = None
     """The safelibero/libero/libero folder of a THU-RCSCT/vlsa-aegis checkout (default: $SAFELIBERO_ROOT)."""
     cells: Literal["all", "feasible"] = "all"
@@ -124,6 +127,14 @@ class BenchConfig:
             raise ValueError("--address is read by --backend ray only")
         if self.safelibero_root is not None and self.scenarios != "official":
             raise ValueError("--safelibero-root is read by --scenarios official only")
+        if self.scenario_version is not None:
+            from detaug_gym.envs.obstacles import SCENARIO_VERSIONS
+
+            if self.scenarios == "official":
+                raise ValueError("--scenario-version chooses procedural scenarios; --scenarios official has one")
+            if self.scenario_version not in SCENARIO_VERSIONS:
+                raise ValueError(f"unknown --scenario-version {self.scenario_version}; valid: "
+                                 f"{', '.join(map(str, SCENARIO_VERSIONS))}")
         for name in ("methods", "suites", "levels", "seeds"):
             if not getattr(self, name):
                 raise ValueError(f"--{name} needs at least one value")
@@ -151,6 +162,8 @@ class BenchConfig:
         notes = []
         if self.scenarios == "official":
             notes.append("Scenarios: the official SafeLIBERO episodes (Hu et al. 2025), read from the user's files.")
+        if self.scenario_version == 0:
+            notes.append("Scenarios: procedural -v0 (before their calibration to the official ones).")
         if self.cells == "feasible":
             left = "; ".join(f"{s} {lv} task {', '.join(map(str, t))}" for s in SUITES if s in self.suites
                              for lv, t in SUITES[s].infeasible.items() if lv in map(parse_level, self.levels))
@@ -290,10 +303,11 @@ def check_env_kwargs(cells: list[tuple[str, str]], cfg: BenchConfig) -> None:
         kwargs = cfg.cell_env_kwargs(suite)
         if not kwargs:
             continue
+        env_id = SUITES[suite].env_id(level, cfg.scenario_version)
         try:
-            gym.make(SUITES[suite].env_id(level), **kwargs).close()
+            gym.make(env_id, **kwargs).close()
         except (TypeError, ValueError, FileNotFoundError) as exc:
-            problems.append(f"{SUITES[suite].env_id(level)} rejected the env options {kwargs}: {exc}")
+            problems.append(f"{env_id} rejected the env options {kwargs}: {exc}")
     if problems:
         raise SystemExit("cannot run:\n  " + "\n  ".join(problems))
 
@@ -321,7 +335,8 @@ def plan_jobs(methods, suites, levels, episodes, seeds, cfg: BenchConfig | None 
                 for ep in range(episodes * n_tasks if official else episodes):
                     if ep % n_tasks in skip:
                         continue
-                    key = EpisodeKey(method, spec.env_id(level), ep % n_tasks, ep,
+                    version = None if cfg is None else cfg.scenario_version
+                    key = EpisodeKey(method, spec.env_id(level, version), ep % n_tasks, ep,
                                      bench_episode_seed(run_seed, suite, level, ep))
                     options = (("episode", ep // n_tasks),) if official else ()
                     jobs.append(Job(key, suite, level, run_seed, env_kwargs=kwargs, reset_options=options))

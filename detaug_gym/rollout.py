@@ -54,8 +54,8 @@ def episode_context(env, seed: int | None = None) -> EpisodeContext | None:
     if suite is None or getattr(base, "episode", None) is None:
         return None
     spec = base.task_spec
-    return EpisodeContext(suite.env_id(base.level), suite.name, base.level, int(base.episode.task), spec.key,
-                          spec.language, seed)
+    return EpisodeContext(suite.env_id(base.level, base.version), suite.name, base.level, int(base.episode.task),
+                          spec.key, spec.language, seed)
 
 
 @dataclass

@@ -26,12 +26,12 @@ def test_registry_answers_every_suite_question_newton_included():
     assert SUITES["goal"].tasks_for("L2")[3].key == "cream_cheese_in_bowl"
     for env_id in all_env_ids():
         suite, level = suite_of_env(env_id)
-        assert suite.env_id(level) == env_id
+        assert suite.env_id(level, suite.version(env_id)) == env_id
         assert gym.spec(env_id).max_episode_steps == suite.max_steps
     assert suite_of_env("detaug_gym:SafeLibero-Long-L1-v0") == (SUITES["long"], "L1")
     with pytest.raises(ValueError, match="its levels: L2, Free"):
         SUITES["newton"].env_id("L1")
-    with pytest.raises(ValueError, match="registered ids: SafeLibero-Spatial-L1-v0"):
+    with pytest.raises(ValueError, match="registered ids: SafeLibero-Spatial-L1-v1"):
         suite_of_env("SafeLibero-Kitchen-L1-v0")
     with pytest.raises(ValueError, match="valid suites: spatial, object, goal, long, newton"):
         get_suite("kitchen")

@@ -94,7 +94,9 @@ def _build_shape_cache(suite: SuiteSpec, path: Path) -> None:
     import detaug_gym  # noqa: F401
     from detaug_gym.geometry.meshes import geom_pose_in_body, geom_trimesh
 
-    env = gym.make(suite.env_id(suite.shape_source_level))
+    # Scenario version 0's six types at LIBERO's scale: the shapes the zoo's DemoGen checkpoints were built with
+    # (version 1 adds SafeLIBERO's enlarged models; a DemoGen trained on those is a new zoo recipe, not this one).
+    env = gym.make(suite.env_id(suite.shape_source_level, version=0))
     try:
         scene = env.unwrapped.scene_for(0)
         arrays = {}

@@ -88,6 +88,7 @@ class ObstacleManipulationEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
     obstacle_types: tuple[str, ...] = OBSTACLE_TYPES
+    version: int = 0  # scenario version of the procedural obstacles (the env id's -vN)
 
     def __init__(self, *, suite: SuiteSpec, level: str, max_steps: int | None = None,
                  obstacle: str | list[str] | None = None, init_state: int | None = None,
@@ -155,7 +156,7 @@ class ObstacleManipulationEnv(gym.Env):
     def _load_init_state(self, scene: Scene, task: int, init_state: int, rng: np.random.Generator) -> None:
         raise NotImplementedError
 
-    def _placement_problem(self, scene: Scene, rng: np.random.Generator) -> PlacementProblem:
+    def _placement_problem(self, scene: Scene, rng: np.random.Generator, step: int | None = None) -> PlacementProblem:
         raise NotImplementedError
 
     # ------------------------------------------------------------------ gym API
@@ -246,12 +247,13 @@ class ObstacleManipulationEnv(gym.Env):
             self.set_state(state)
         return self.observe(), info
 
-    def placement_problem(self, rng: np.random.Generator | None = None) -> PlacementProblem:
+    def placement_problem(self, rng: np.random.Generator | None = None, step: int | None = None) -> PlacementProblem:
         """Where an obstacle may go in the current scene (pick and place footprints, other objects, the
-        sampling box); ``rng`` picks the pick-place step of multi-step tasks (default: the first)."""
+        sampling box) for the pick-place ``step`` of the task; without one, ``rng`` draws it (default
+        ``default_rng(0)``)."""
         if self.scene is None:
             raise RuntimeError("call reset() before placement_problem()")
-        return self._placement_problem(self.scene, rng if rng is not None else np.random.default_rng(0))
+        return self._placement_problem(self.scene, rng if rng is not None else np.random.default_rng(0), step)
 
     def scene_for(self, task: int) -> Scene:
         """The compiled scene of ``task`` (index into :attr:`tasks`), built on first use and cached."""

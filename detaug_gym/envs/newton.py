@@ -75,7 +75,7 @@ class NewtonPickPlaceEnv(ObstacleManipulationEnv):
         d.qpos[cube : cube + 7] = (*cube_xy, TABLE_TOP + CUBE_HALF, np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2))
         m.body_pos[scene.body_id("target")] = (*target_xy, TABLE_TOP + 0.001)
 
-    def _placement_problem(self, scene: Scene, rng: np.random.Generator) -> PlacementProblem:
+    def _placement_problem(self, scene: Scene, rng: np.random.Generator, step: int | None = None) -> PlacementProblem:
         pick = scene.footprint("cube")
         target = scene.pose_of("target")[:2]
         place = Footprint("target", target - 0.03, target + 0.03)

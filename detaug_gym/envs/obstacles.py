@@ -1,7 +1,12 @@
 """SafeLIBERO's obstacle set, added to a robosuite model as free bodies that start parked.
 
-All six obstacle types (LIBERO assets) and both pedestals are compiled into the model once, so that an
-episode can switch the active obstacle with a soft reset. Inactive obstacles are parked far below the
+Two procedural sets (:data:`OBSTACLE_SETS`), one per scenario version of the env ids. Version 0 (``-v0``): the six
+types at LIBERO's own scale and two static pedestals. Version 1 (``-v1``, calibrated to the official SafeLIBERO
+scenarios, :mod:`~detaug_gym.envs.calibration`): the nine types SafeLIBERO uses (its moka pot, milk and wine
+bottle enlarged 1.6 / 2 / 1.6 times, LIBERO's scale as the ``_small`` ones, the storage box lying on its side) and
+two free, movable bases with the outer size of SafeLIBERO's (``box_base`` 14 cm tall, ``box_small_base`` 7.6 cm).
+Every type and base of a set is compiled into the model once, so that an episode can switch the active obstacle
+with a soft reset. Inactive obstacles are parked far below the
 scene with contacts and gravity switched off; the active one gets its contacts and gravity back and is
 set down on the support surface. Obstacle joints come after every LIBERO joint in ``qpos``, so LIBERO's
 official init states fill the leading part of the state unchanged.
@@ -17,28 +22,76 @@ import numpy as np
 from detaug_gym.envs.placement import PEDESTALS
 from detaug_gym.geometry.meshes import body_collision_mesh, is_collision_geom, sample_surface
 
-OBSTACLE_TYPES = ("moka_pot", "white_storage_box", "milk", "wine_bottle", "red_coffee_mug", "yellow_book")
 OBSTACLE_POINTS = 256  # surface samples per obstacle in the observation
 PARK_DEPTH = -5.0  # z of parked obstacles (below the floor, out of every sensor's way)
-# Rotation (about x, rad) that stands an asset upright; LIBERO's HOPE meshes (the milk carton) lie along y.
-UPRIGHT_X_ROTATION = {"milk": np.pi / 2}
+
+
+@dataclass(frozen=True)
+class ObstacleVariant:
+    """How a procedural set builds one obstacle type.
+
+    Attributes:
+        category: the LIBERO object category of its model.
+        scale: uniform scale on the LIBERO model (meshes, geoms, positions; mass by volume).
+        upright_x: rotation about x (rad) that stands it as the scenarios do (LIBERO's milk carton lies along y;
+            SafeLIBERO lays the storage box on its side).
+    """
+
+    category: str
+    scale: float = 1.0
+    upright_x: float = 0.0
+
+
+OBSTACLE_SETS: dict[int, dict[str, ObstacleVariant]] = {
+    0: {"moka_pot": ObstacleVariant("moka_pot"), "white_storage_box": ObstacleVariant("white_storage_box"),
+        "milk": ObstacleVariant("milk", upright_x=np.pi / 2), "wine_bottle": ObstacleVariant("wine_bottle"),
+        "red_coffee_mug": ObstacleVariant("red_coffee_mug"), "yellow_book": ObstacleVariant("yellow_book")},
+    # SafeLIBERO's types and sizes: its moka pot at mesh scale 0.04 (LIBERO 0.025), milk 0.015 (0.0075), wine
+    # bottle 0.8 (0.5); its "_small" ones are LIBERO's.
+    1: {"moka_pot": ObstacleVariant("moka_pot", 1.6), "moka_pot_small": ObstacleVariant("moka_pot"),
+        "milk": ObstacleVariant("milk", 2.0, np.pi / 2), "milk_small": ObstacleVariant("milk", upright_x=np.pi / 2),
+        "wine_bottle": ObstacleVariant("wine_bottle", 1.6), "wine_bottle_small": ObstacleVariant("wine_bottle"),
+        "white_storage_box": ObstacleVariant("white_storage_box", upright_x=np.pi / 2),
+        "red_coffee_mug": ObstacleVariant("red_coffee_mug"), "yellow_book": ObstacleVariant("yellow_book")},
+}
+OBSTACLE_TYPES = tuple(OBSTACLE_SETS[0])  # version 0's types, in its compile order
+# Version 1's movable bases: free boxes with the outer size of SafeLIBERO's (half-extents, m) and its density.
+BASES: dict[str, np.ndarray] = {
+    "box_base": np.array([0.0704, 0.0583, 0.0701]),
+    "box_small_base": np.array([0.0704, 0.0583, 0.0382]),
+}
+BASE_DENSITY = 100.0  # kg/m^3, SafeLIBERO's base
+SCENARIO_VERSIONS = tuple(OBSTACLE_SETS)
 
 
 def obstacle_body_name(kind: str) -> str:
     return f"obstacle_{kind}"
 
 
-def add_obstacles_to_model(task_model, object_factory) -> None:
-    """Append the six obstacles (free joints) and two static pedestals to a robosuite ``ManipulationTask``.
+def add_obstacles_to_model(task_model, object_factory, version: int = 0) -> None:
+    """Append a procedural set to a robosuite ``ManipulationTask``: its obstacles (free joints), then version 0's
+    two static pedestals or version 1's two free bases.
 
     Args:
         task_model: robosuite ``ManipulationTask`` (``env.model`` inside ``_load_model``).
         object_factory: ``category -> class`` (LIBERO's ``get_object_fn``).
+        version: the scenario version (:data:`SCENARIO_VERSIONS`).
     """
+    from robosuite.models.objects import BoxObject
     from robosuite.utils.mjcf_utils import new_body, new_geom
 
-    objects = [object_factory(kind)(name=obstacle_body_name(kind)) for kind in OBSTACLE_TYPES]
+    objects = []
+    for kind, variant in OBSTACLE_SETS[version].items():
+        obj = object_factory(variant.category)(name=obstacle_body_name(kind))
+        if variant.scale != 1.0:
+            _scale_object(obj, variant.scale)
+        objects.append(obj)
+    if version >= 1:
+        objects += [BoxObject(name=name, size=tuple(half), rgba=(0.76, 0.6, 0.42, 1.0), density=BASE_DENSITY,
+                              friction=(0.95, 0.3, 0.1)) for name, half in BASES.items()]
     task_model.merge_objects(objects)
+    if version >= 1:
+        return
     for i, (name, half) in enumerate(PEDESTALS.items()):
         body = new_body(name=f"pedestal_{name}", pos=(0.0, 2.0 * i, PARK_DEPTH))
         body.append(
@@ -100,13 +153,38 @@ class PedestalHandle:
     half: np.ndarray
 
 
+def _scale_object(obj, factor: float) -> None:
+    """Scale a robosuite XML object in place before it is merged: mesh scales, geom sizes (primitive geoms),
+    every body, geom, site and inertial position, and inertial masses (by volume)."""
+    for mesh in obj.asset.iter("mesh"):
+        scale = np.array([float(v) for v in mesh.get("scale", "1 1 1").split()])
+        mesh.set("scale", " ".join(f"{v:g}" for v in scale * factor))
+    for el in obj._obj.iter():
+        if "pos" in el.attrib:
+            el.set("pos", " ".join(f"{float(v) * factor:g}" for v in el.get("pos").split()))
+        if el.tag in ("geom", "site") and "size" in el.attrib and el.get("type") != "mesh":
+            el.set("size", " ".join(f"{float(v) * factor:g}" for v in el.get("size").split()))
+        if el.tag == "inertial" and "mass" in el.attrib:
+            el.set("mass", f"{float(el.get('mass')) * factor ** 3:g}")
+            if "diaginertia" in el.attrib:
+                el.set("diaginertia", " ".join(f"{float(v) * factor ** 5:g}" for v in el.get("diaginertia").split()))
+
+
 def procedural_bodies(kinds: tuple[str, ...] = OBSTACLE_TYPES) -> dict[str, str]:
     """``{kind: root body}`` of the obstacles :func:`add_obstacles_to_model` compiles in (``obstacle_<kind>_main``)."""
     return {kind: f"{obstacle_body_name(kind)}_main" for kind in kinds}
 
 
-def obstacle_handles(model: mujoco.MjModel, bodies: dict[str, str]) -> dict[str, ObstacleHandle]:
-    """The obstacles of a compiled model, from ``{kind: root body name}`` (each body has a free joint)."""
+def procedural_joints(version: int) -> int:
+    """How many free joints :func:`add_obstacles_to_model` appends for ``version`` (obstacles and bases)."""
+    return len(OBSTACLE_SETS[version]) + (len(BASES) if version >= 1 else 0)
+
+
+def obstacle_handles(model: mujoco.MjModel, bodies: dict[str, str],
+                     upright_x: dict[str, float] | None = None) -> dict[str, ObstacleHandle]:
+    """The obstacles of a compiled model, from ``{kind: root body name}`` (each body has a free joint);
+    ``upright_x`` gives the rotation about x that stands a kind as the scenarios do (default: none)."""
+    upright_x = upright_x or {}
     handles = {}
     for kind, body in bodies.items():
         body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body)
@@ -117,7 +195,7 @@ def obstacle_handles(model: mujoco.MjModel, bodies: dict[str, str]) -> dict[str,
             [g for g in range(model.ngeom) if model.geom_bodyid[g] == body_id and is_collision_geom(model, g)]
         )
         mesh = body_collision_mesh(model, body_id)
-        angle = UPRIGHT_X_ROTATION.get(kind, 0.0)
+        angle = upright_x.get(kind, 0.0)
         upright = np.array([np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0])
         rot = np.zeros(9)
         mujoco.mju_quat2Mat(rot, upright)
@@ -150,10 +228,17 @@ def pedestal_handles(model: mujoco.MjModel) -> dict[str, PedestalHandle]:
     return out
 
 
+def base_handles(model: mujoco.MjModel) -> dict[str, ObstacleHandle]:
+    """Version 1's movable bases of a compiled model (none where they were not compiled in)."""
+    names = {name: f"{name}_main" for name in BASES}
+    present = {n: b for n, b in names.items() if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b) >= 0}
+    return obstacle_handles(model, present) if present else {}
+
+
 def park_all(model: mujoco.MjModel, data: mujoco.MjData, obstacles: dict[str, ObstacleHandle],
-             pedestals: dict[str, PedestalHandle]) -> None:
-    """Move every obstacle and pedestal out of the scene, with contacts and gravity off."""
-    for i, h in enumerate(obstacles.values()):
+             pedestals: dict[str, PedestalHandle], bases: dict[str, ObstacleHandle] | None = None) -> None:
+    """Move every obstacle, base and pedestal out of the scene, with contacts and gravity off."""
+    for i, h in enumerate([*obstacles.values(), *(bases or {}).values()]):
         model.geom_contype[h.geom_ids] = 0
         model.geom_conaffinity[h.geom_ids] = 0
         model.body_gravcomp[h.body_id] = 1.0

@@ -230,6 +230,7 @@ def build_official_scene(files: SafeLiberoFiles, suite: str, task: TaskSpec, lev
     """
     import mujoco
 
+    from detaug_gym.envs.obstacles import OBSTACLE_SETS
     from detaug_gym.envs.safe_libero import compile_libero, libero_scene
 
     files.require(suite, level, (task,))
@@ -241,7 +242,8 @@ def build_official_scene(files: SafeLiberoFiles, suite: str, task: TaskSpec, lev
                  if is_obstacle_category(obj.category_name) and obj.category_name not in BASE_CATEGORIES}
     bases = tuple(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, obj.root_body)
                   for obj in sim_env.objects_dict.values() if obj.category_name in BASE_CATEGORIES)
-    scene = libero_scene(sim_env, obstacles, (m.nq, m.nv), parked=False)
+    upright = {kind: v.upright_x for kind, v in OBSTACLE_SETS[0].items()}  # LIBERO's milk carton lies along y
+    scene = libero_scene(sim_env, obstacles, (m.nq, m.nv), parked=False, upright_x=upright)
     states = files.init_states(suite, task, level)
     if states.shape[1] != 1 + m.nq + m.nv:
         raise ValueError(f"{files.init_file(suite, task, level)} holds states of {states.shape[1]} entries; the scene "

@@ -71,6 +71,8 @@ class PlacementProblem:
     workspace_hi: np.ndarray
     start: np.ndarray
     start_height: float = 0.0
+    removable: frozenset[str] = frozenset()
+    """Names of ``others`` that an anchored placement may take off the table (SafeLIBERO removes distractors)."""
 
     def path_segments(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """The Level 2 candidate segments in order of preference: carry, then approach."""
@@ -79,16 +81,19 @@ class PlacementProblem:
 
 @dataclass(frozen=True)
 class Placement:
-    """Result: obstacle centre ``xy``, ``yaw`` about z, and the pedestal under it (``None``, "half", "full")."""
+    """Result: obstacle centre ``xy``, ``yaw`` about z, and what it stands on: ``None`` (the support), a
+    pedestal (``"half"``, ``"full"``; scenario version 0) or a base (``"box_base"``, ``"box_small_base"``;
+    version 1)."""
 
     xy: np.ndarray
     yaw: float
     pedestal: str | None
     level: str
     relaxed: int = 0  # how many times the constraints had to be relaxed to find a spot
-    segment: str = ""  # Level 2: "carry" or "approach"
+    segment: str = ""  # Level 2: "carry" or "approach"; "anchor" for a calibrated placement
     footprint: Footprint = field(default=None)  # type: ignore[assignment]
     problem: PlacementProblem | None = field(default=None, repr=False)  # the scene it was placed in
+    removed: tuple[str, ...] = ()  # distractors an anchored placement takes off the table
 
 
 def footprint_gap(a: Footprint, b: Footprint) -> float:
@@ -144,9 +149,7 @@ def place_obstacle(
     half_extents = np.asarray(half_extents, dtype=np.float64)
     pedestal = choose_pedestal(2 * half_extents[2]) if level == "L2" else None
     top = 2 * half_extents[2] + (0.0 if pedestal is None else 2 * PEDESTALS[pedestal][2])
-    if top + HAND_CLEARANCE > problem.start_height:  # the obstacle would reach the hand: keep out from under it
-        hand = Footprint("robot_hand", problem.start - 0.05, problem.start + 0.05)
-        problem = replace(problem, others=(*problem.others, hand))
+    problem = _keep_from_hand(problem, top)
     segments = problem.path_segments() if level == "L2" else [("", problem.pick.center, problem.pick.center)]
     # Relaxation rounds: (path fraction range, lateral offset bound, scale on the clearance gaps). The
     # lateral bound never exceeds the obstacle's half-width, so a Level 2 footprint always covers the path.
@@ -171,10 +174,96 @@ def place_obstacle(
     return best
 
 
-def _obstacle_footprint(xy: np.ndarray, half: np.ndarray, yaw: float, pedestal: str | None) -> Footprint:
+# place_at_anchor's rounds: (jitter multiplier, direction freed about the pick object, largest factor on the
+# spot's distance from it). The freed rounds keep roughly the spot's gap, then move out to 1.6 times its distance.
+ANCHOR_ROUNDS = ((1.0, False, 1.0), (2.0, False, 1.0), (3.0, False, 1.0), (1.0, True, 1.0), (1.0, True, 1.6))
+MIN_GAP_AT_ANCHOR = 0.005  # m, clearance of an anchored obstacle (with its base) to every object
+HAND_CLEARANCE_AT_ANCHOR = 0.03  # m under the grip site at the start (SafeLIBERO's spots come closer than v0's)
+
+
+def place_at_anchor(problem: PlacementProblem, half_extents: np.ndarray, base_half: np.ndarray | None,
+                    anchor, level: str, rng: np.random.Generator, attempts: int = 200,
+                    accept=None) -> Placement:
+    """Sample an obstacle position around a calibrated anchor (scenario version 1,
+    :mod:`~detaug_gym.envs.calibration`).
+
+    The centre is drawn at the anchor's spot on the pick -> place path of ``problem`` (``anchor.along`` of its
+    length along it, ``anchor.lateral`` beside it), within the calibration's jitter along and across, with a
+    uniform yaw; the base (``base_half``, half-extents ``(3,)``, or None) stands under it with the same centre and
+    yaw. A sample is valid inside the workspace box, at least :data:`MIN_GAP_AT_ANCHOR` from every object, pick
+    and place target included (and from the hand's start when the obstacle's top comes within
+    :data:`HAND_CLEARANCE_AT_ANCHOR` of it), and where ``accept(footprint)`` (when given; the env checks that the
+    support under it is flat) says so. Distractors named in ``problem.removable`` do not block a spot: those it
+    would touch are listed in ``Placement.removed`` and the env takes them off the table, as SafeLIBERO's scenes
+    leave distractors out. Without a valid sample the jitter widens (:data:`ANCHOR_ROUNDS`, recorded in
+    ``Placement.relaxed``), then the spot turns about the pick object at its distance, then farther; failing
+    all rounds, the
+    least-overlapping sample is used (``relaxed == len(ANCHOR_ROUNDS)``), one that ``accept`` passes if any does.
+
+    Args:
+        problem: the scene footprints (``pick`` and ``place`` of the task's first pick-place step).
+        half_extents: obstacle half-extents in its own upright frame, ``(3,)``.
+        base_half: the base's half-extents ``(3,)``, or None.
+        anchor: a :class:`~detaug_gym.envs.calibration.Anchor` (its ``along``, ``lateral`` and ``base``).
+        level: ``"L1"`` or ``"L2"`` (recorded).
+        rng: the env's generator; the same state gives the same placement.
+        attempts: samples per round.
+        accept: ``footprint -> bool``, an extra check of the scene (or None).
+    """
+    from detaug_gym.envs.calibration import JITTER
+
+    half_extents = np.asarray(half_extents, dtype=np.float64)
+    top = 2 * half_extents[2] + (0.0 if base_half is None else 2 * float(base_half[2]))
+    problem = _keep_from_hand(problem, top, HAND_CLEARANCE_AT_ANCHOR)
+    axis = problem.place.center - problem.pick.center
+    unit = axis / max(float(np.linalg.norm(axis)), 1e-9)
+    normal = np.array([-unit[1], unit[0]])
+    spot = anchor.along * axis + anchor.lateral * normal  # relative to the pick object's centre
+    fixed = (*(o for o in problem.others if o.name not in problem.removable), problem.pick, problem.place)
+    removable = [o for o in problem.others if o.name in problem.removable]
+    best, best_score = None, (False, -np.inf)  # (accepted, least gap) of the fallback
+    for relaxed, (widen, free, farther) in enumerate(ANCHOR_ROUNDS):
+        for _ in range(attempts):
+            if free:  # about the pick object, at (up to ``farther`` times) the spot's distance
+                turn = rng.uniform(-np.pi, np.pi)
+                rot = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+                rel = rng.uniform(1.0, farther) * (rot @ spot)
+            else:
+                rel = spot + widen * JITTER * (rng.uniform(-1, 1) * unit + rng.uniform(-1, 1) * normal)
+            yaw = float(rng.uniform(-np.pi, np.pi))
+            xy = problem.pick.center + rel
+            fp = _obstacle_footprint(xy, half_extents, yaw, None, base_half)
+            inside = np.all(xy >= problem.workspace_lo) and np.all(xy <= problem.workspace_hi)
+            score = min(footprint_gap(fp, other) for other in fixed) if inside else -1.0
+            removed = tuple(o.name for o in removable if footprint_gap(fp, o) < MIN_GAP_AT_ANCHOR)
+            if score >= MIN_GAP_AT_ANCHOR and (accept is None or accept(fp)):
+                return Placement(xy, yaw, anchor.base, level, relaxed, "anchor", fp, problem, removed)
+            # The fallback: the least-overlapping sample, among those ``accept`` passes when there are any.
+            if score > best_score[1] or not best_score[0]:
+                candidate = (accept is None or accept(fp), score)
+                if candidate > best_score:
+                    best = Placement(xy, yaw, anchor.base, level, len(ANCHOR_ROUNDS), "anchor", fp, problem,
+                                     removed)
+                    best_score = candidate
+    return best
+
+
+def _keep_from_hand(problem: PlacementProblem, top: float, clearance: float = HAND_CLEARANCE) -> PlacementProblem:
+    """``problem`` with the box around the hand's start among the objects to avoid when an obstacle of this
+    ``top`` (above the support) would come within ``clearance`` of the hand's grip site."""
+    if top + clearance <= problem.start_height:
+        return problem
+    hand = Footprint("robot_hand", problem.start - 0.05, problem.start + 0.05)
+    return replace(problem, others=(*problem.others, hand))
+
+
+def _obstacle_footprint(xy: np.ndarray, half: np.ndarray, yaw: float, pedestal: str | None,
+                        base_half: np.ndarray | None = None) -> Footprint:
     ext = rotated_half_extents(half[:2], yaw)
     if pedestal is not None:
         ext = np.maximum(ext, rotated_half_extents(PEDESTALS[pedestal][:2], yaw))
+    if base_half is not None:
+        ext = np.maximum(ext, rotated_half_extents(np.asarray(base_half)[:2], yaw))
     return Footprint("obstacle", xy - ext, xy + ext)
 
 

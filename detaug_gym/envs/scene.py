@@ -18,6 +18,7 @@ import numpy as np
 from detaug_gym.envs.obstacles import (
     ObstacleHandle,
     PedestalHandle,
+    base_handles,
     obstacle_handles,
     park_all,
     pedestal_handles,
@@ -59,10 +60,12 @@ class Scene:
         success_fn: ``() -> bool`` evaluating the task's goal on the current sim state.
         parked: the obstacles are the procedural set (:mod:`~detaug_gym.envs.obstacles`), parked out of the
             scene until an episode activates one; ``False`` when the init state poses them (official scenarios).
+        upright_x: ``{kind: rotation about x (rad)}`` that stands an obstacle type upright (default none).
     """
 
     def __init__(self, sim_env, pick_places: list[PickPlace], tracked: list[str], obstacle_bodies: dict[str, str],
-                 state_size: tuple[int, int], success_fn, parked: bool = True) -> None:
+                 state_size: tuple[int, int], success_fn, parked: bool = True,
+                 upright_x: dict[str, float] | None = None) -> None:
         self.sim_env = sim_env
         self.model: mujoco.MjModel = sim_env.sim.model._model
         self.data: mujoco.MjData = sim_env.sim.data._data
@@ -84,8 +87,10 @@ class Scene:
         self.gripper_geom = self.robot_geom & gripper_body[m.geom_bodyid]
         self._body_names = body_names
         self._movable = _movable_bodies(m)
-        self.obstacles: dict[str, ObstacleHandle] = obstacle_handles(m, obstacle_bodies) if obstacle_bodies else {}
+        self.obstacles: dict[str, ObstacleHandle] = (obstacle_handles(m, obstacle_bodies, upright_x)
+                                                     if obstacle_bodies else {})
         self.pedestals: dict[str, PedestalHandle] = pedestal_handles(m)
+        self.bases: dict[str, ObstacleHandle] = base_handles(m) if self.obstacles and parked else {}
         self.parked = parked and bool(self.obstacles)
         self._tracked_refs = [self._pose_ref(name) for name in tracked]
         self._tracked_local = [self._local_points(ref) for ref in self._tracked_refs]
@@ -93,7 +98,7 @@ class Scene:
         self.nominal_body_pos = m.body_pos.copy()
         self.nominal_body_quat = m.body_quat.copy()
         if self.parked:
-            park_all(m, self.data, self.obstacles, self.pedestals)
+            park_all(m, self.data, self.obstacles, self.pedestals, self.bases)
 
     # ------------------------------------------------------------------ indices
     def _joint(self, name: str) -> int:
@@ -168,7 +173,7 @@ class Scene:
         m.body_pos[:] = self.nominal_body_pos
         m.body_quat[:] = self.nominal_body_quat
         if self.parked:  # mj_resetData put the obstacles back at their compiled pose, inside the scene
-            park_all(m, d, self.obstacles, self.pedestals)
+            park_all(m, d, self.obstacles, self.pedestals, self.bases)
 
     # ------------------------------------------------------------------ reading
     def eef_pose(self) -> tuple[np.ndarray, np.ndarray]:

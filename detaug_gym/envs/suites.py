@@ -9,6 +9,8 @@ level (L2, the cylinder on the path).
 
     >>> from detaug_gym.envs.suites import SUITES, suite_of_env
     >>> SUITES["spatial"].env_id("L2")
+    'SafeLibero-Spatial-L2-v1'
+    >>> SUITES["spatial"].env_id("L2", version=0)
     'SafeLibero-Spatial-L2-v0'
     >>> suite_of_env("Newton-PickPlace-Cylinder-v0")
     (SuiteSpec(name='newton', ...), 'L2')
@@ -22,6 +24,7 @@ LEVELS = ("L1", "L2", "Free")
 LEVEL_ALIASES = {"1": "L1", "l1": "L1", "2": "L2", "l2": "L2", "free": "Free"}
 NUM_INIT_STATES = 50  # LIBERO's official init states per task (and Newton's fixed layouts)
 ENV_PREFIX = "detaug_gym:"  # gymnasium's "module:EnvId" form
+SCENARIO_VERSION = 1  # the current procedural scenarios of SafeLIBERO's L1/L2 ids
 
 
 @dataclass(frozen=True)
@@ -53,7 +56,9 @@ class SuiteSpec:
         tasks: every task of the suite (the Free level offers all of them).
         level_tasks: indices into ``tasks`` for each obstacle level, in SafeLIBERO's order.
         object_slots: rows of the ``object_poses`` observation (task-relevant objects, zero padded).
-        ids: env id per level (the levels this suite has).
+        ids: env id per level (the levels this suite has), the current scenario version.
+        legacy_ids: ``{version: {level: env id}}`` of older scenario versions that stay registered and reproducible
+            (SafeLIBERO's L1/L2 ``-v0``: the procedural scenarios before their calibration to the official ones).
         entry_point: gymnasium entry point of its env class; ``kwargs`` per level are given by ``env_kwargs``.
         max_grasps: most grasps of any task (DetAug's label has 4 entries per grasp).
         num_init_states: init states per task (LIBERO's 50 official ones; Newton's 50 fixed layouts).
@@ -78,20 +83,41 @@ class SuiteSpec:
     official: bool = False
     aegis_max_steps: int | None = None
     infeasible: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    legacy_ids: dict[int, dict[str, str]] = field(default_factory=dict)
 
     @property
     def levels(self) -> tuple[str, ...]:
         """The levels this suite has, in :data:`LEVELS` order."""
         return tuple(level for level in LEVELS if level in self.ids)
 
-    def env_id(self, level: str) -> str:
-        """The registered env id of ``level`` (``"L1"``, ``"1"``, ``"free"``, ...)."""
+    def env_id(self, level: str, version: int | None = None) -> str:
+        """The registered env id of ``level`` (``"L1"``, ``"1"``, ``"free"``, ...): the current scenarios, or
+        those of an older ``version`` where the level has one (a level a version did not change keeps its id)."""
         level = self.check_level(level)
-        return self.ids[level]
+        if version is None or version == self.version(self.ids[level]):
+            return self.ids[level]
+        if version in self.legacy_ids:
+            return self.legacy_ids[version].get(level, self.ids[level])
+        known = sorted({self.version(i) for i in self.ids.values()} | set(self.legacy_ids))
+        raise ValueError(f"suite {self.name!r} has no scenario version {version!r}; its versions: "
+                         f"{', '.join(map(str, known))}")
 
-    def env_kwargs(self, level: str) -> dict:
-        """Constructor kwargs the registration passes for ``level``."""
-        return dict(self.level_kwargs.get(self.check_level(level), {}))
+    @staticmethod
+    def version(env_id: str) -> int:
+        """The scenario version of an env id (its ``-vN`` suffix)."""
+        return int(env_id.rsplit("-v", 1)[1])
+
+    def env_kwargs(self, level: str, version: int | None = None) -> dict:
+        """Constructor kwargs the registration passes for ``level`` (at ``version``, default the current one)."""
+        kwargs = dict(self.level_kwargs.get(self.check_level(level), {}))
+        if "version" in kwargs:
+            kwargs["version"] = self.version(self.env_id(level, version))
+        return kwargs
+
+    def registered(self) -> list[tuple[str, str, int]]:
+        """Every ``(env id, level, version)`` this suite registers: the current ids, then the legacy ones."""
+        rows = [(self.ids[lv], lv, self.version(self.ids[lv])) for lv in self.levels]
+        return rows + [(i, lv, v) for v, ids in sorted(self.legacy_ids.items()) for lv, i in ids.items()]
 
     def check_level(self, level: str) -> str:
         """The canonical level name; ``ValueError`` names the levels this suite has."""
@@ -152,11 +178,16 @@ def parse_level(level: str) -> str:
 
 def _safelibero(name: str, max_steps: int, tasks: tuple[TaskSpec, ...], level_tasks: dict, object_slots: int,
                 max_grasps: int, aegis_max_steps: int, infeasible: dict | None = None) -> SuiteSpec:
-    ids = {level: f"SafeLibero-{name.capitalize()}-{level}-v0" for level in LEVELS}
+    # Version 1 (L1/L2): procedural scenarios calibrated to the official ones (docs/scenarios.md); the Free level
+    # has no obstacle and keeps -v0.
+    ids = {level: f"SafeLibero-{name.capitalize()}-{level}-v{SCENARIO_VERSION if level != 'Free' else 0}"
+           for level in LEVELS}
+    legacy = {0: {level: f"SafeLibero-{name.capitalize()}-{level}-v0" for level in ("L1", "L2")}}
     return SuiteSpec(name, max_steps, tasks, level_tasks, object_slots, ids,
                      "detaug_gym.envs.safe_libero:SafeLiberoEnv", max_grasps,
-                     level_kwargs={level: {"suite": name, "level": level} for level in LEVELS},
-                     official=True, aegis_max_steps=aegis_max_steps, infeasible=infeasible or {})
+                     level_kwargs={level: {"suite": name, "level": level, "version": 0} for level in LEVELS},
+                     official=True, aegis_max_steps=aegis_max_steps, infeasible=infeasible or {},
+                     legacy_ids=legacy)
 
 
 def _spatial(key: str, index: int, where: str) -> TaskSpec:
@@ -255,12 +286,12 @@ def suite_of_env(env_id: str) -> tuple[SuiteSpec, str]:
     """``(suite, level)`` of a registered env id (``"detaug_gym:"`` prefix allowed); ``ValueError`` lists the ids."""
     bare = env_id[len(ENV_PREFIX):] if env_id.startswith(ENV_PREFIX) else env_id
     for suite in SUITES.values():
-        for level, candidate in suite.ids.items():
+        for candidate, level, _ in suite.registered():
             if candidate == bare:
                 return suite, level
     raise ValueError(f"unknown env id {env_id!r}; registered ids: {', '.join(all_env_ids())}")
 
 
 def all_env_ids() -> list[str]:
-    """Every env id of every suite, suite by suite."""
-    return [suite.ids[level] for suite in SUITES.values() for level in suite.levels]
+    """Every registered env id of every suite, suite by suite (current ids, then legacy ones)."""
+    return [env_id for suite in SUITES.values() for env_id, _, _ in suite.registered()]
