@@ -337,8 +337,7 @@ class ObstacleManipulationEnv(gym.Env):
         problem = self._placement_problem(scene, rng)
         placement = place_obstacle(problem, handle.half_extents, self.level, rng)
         fp = placement.footprint
-        corners = [fp.center, fp.lo, fp.hi, np.array([fp.lo[0], fp.hi[1]]), np.array([fp.hi[0], fp.lo[1]])]
-        support = max(scene.support_height(c) for c in corners)
+        support = max(scene.support_heights(fp))
         if placement.pedestal is not None:
             support = raise_pedestal(scene.model, scene.pedestals[placement.pedestal], placement.xy,
                                      placement.yaw, support)

@@ -178,7 +178,7 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
             _take_off_table(scene, name, i)
         if placement.removed:
             mujoco.mj_forward(scene.model, scene.data)  # the support rays must not meet a removed distractor
-        support = max(_support_heights(scene, placement.footprint))
+        support = max(scene.support_heights(placement.footprint))
         support_geoms: list[int] = []
         if base is not None:
             activate(scene.model, scene.data, base, placement.xy, placement.yaw, support)
@@ -217,14 +217,6 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
 
 
 FLAT_SUPPORT = 0.005  # m: an anchored obstacle's footprint must rest on one surface (no corner on another object)
-
-
-def _support_heights(scene: Scene, fp) -> list[float]:
-    """Support heights under the centre and the four corners of a footprint."""
-    corners = [fp.center, fp.lo, fp.hi, np.array([fp.lo[0], fp.hi[1]]), np.array([fp.hi[0], fp.lo[1]])]
-    return [scene.support_height(c) for c in corners]
-
-
 OFF_TABLE = np.array([4.0, 4.0, 0.1])  # where a removed distractor goes: on the floor, far from the robot
 
 
@@ -253,7 +245,7 @@ def _take_off_table(scene: Scene, name: str, index: int) -> None:
 
 def _flat_under(scene: Scene, fp, fixture: Footprint | None = None) -> bool:
     """Whether ``fp`` rests on one flat surface, and wholly on ``fixture``'s top where it overlaps its box."""
-    heights = _support_heights(scene, fp)
+    heights = scene.support_heights(fp)
     if max(heights) - min(heights) > FLAT_SUPPORT:
         return False
     return fixture is None or footprint_gap(fp, fixture) >= MIN_GAP_AT_ANCHOR or abs(heights[0] - fixture.top) < 0.01

@@ -261,6 +261,11 @@ class Scene:
         lo, hi = bounds
         return Footprint(name, lo[:2], hi[:2], float(hi[2]))
 
+    def support_heights(self, fp: Footprint) -> list[float]:
+        """:meth:`support_height` under the centre and the four corners of a footprint (centre first)."""
+        corners = [fp.center, fp.lo, fp.hi, np.array([fp.lo[0], fp.hi[1]]), np.array([fp.hi[0], fp.lo[1]])]
+        return [self.support_height(c) for c in corners]
+
     def support_height(self, xy: np.ndarray) -> float:
         """Height of the first collision surface below ``xy`` that is not the robot, by downward rays."""
         m = self.model
