@@ -51,7 +51,7 @@ from tqdm import tqdm
 from detaug_gym.backends import run_jobs
 from detaug_gym.config import build_parser as config_parser
 from detaug_gym.config import config_from_namespace
-from detaug_gym.envs.suites import NUM_INIT_STATES, SUITES, get_suite, parse_level
+from detaug_gym.envs.suites import NUM_INIT_STATES, OFFICIAL_ID_VERSION, SUITES, get_suite, parse_level
 from detaug_gym.manifest import check_manifest, method_checkpoints, write_manifest
 from detaug_gym.policies.options import check_device
 from detaug_gym.report import read_records, record_key, repair_log, write_report
@@ -102,8 +102,9 @@ class BenchConfig:
     """procedural (an obstacle placed from the seed on LIBERO's scenes) or official (SafeLIBERO's own episodes from
     --safelibero-root; --episodes then counts per task, 50 = all)."""
     scenario_version: int | None = None
-    """Procedural scenario version of the L1/L2 ids: 1 (calibrated to the official scenarios, the default) or 0
-    (the -v0 scenarios the tables before 2026-12-04 were measured on)."""
+    """Procedural scenario version of the L1/L2 ids: 2 (calibrated to the official scenarios with SafeLIBERO's scene
+    edits, the default), 1 (calibrated spots on LIBERO's layouts; tables of 2026-12-04) or 0 (the -v0 scenarios the
+    tables before 2026-12-04 were measured on)."""
     safelibero_root: str | None = None
     """The safelibero/libero/libero folder of a THU-RCSCT/vlsa-aegis checkout (default: $SAFELIBERO_ROOT)."""
     cells: Literal["all", "feasible"] = "all"
@@ -164,6 +165,9 @@ class BenchConfig:
             notes.append("Scenarios: the official SafeLIBERO episodes (Hu et al. 2025), read from the user's files.")
         if self.scenario_version == 0:
             notes.append("Scenarios: procedural -v0 (before their calibration to the official ones).")
+        if self.scenario_version == 1:
+            notes.append("Scenarios: procedural -v1 (calibrated spots on LIBERO's layouts, before SafeLIBERO's "
+                         "scene edits).")
         if self.cells == "feasible":
             left = "; ".join(f"{s} {lv} task {', '.join(map(str, t))}" for s in SUITES if s in self.suites
                              for lv, t in SUITES[s].infeasible.items() if lv in map(parse_level, self.levels))
@@ -335,7 +339,7 @@ def plan_jobs(methods, suites, levels, episodes, seeds, cfg: BenchConfig | None 
                 for ep in range(episodes * n_tasks if official else episodes):
                     if ep % n_tasks in skip:
                         continue
-                    version = None if cfg is None else cfg.scenario_version
+                    version = OFFICIAL_ID_VERSION if official else None if cfg is None else cfg.scenario_version
                     key = EpisodeKey(method, spec.env_id(level, version), ep % n_tasks, ep,
                                      bench_episode_seed(run_seed, suite, level, ep))
                     options = (("episode", ep // n_tasks),) if official else ()

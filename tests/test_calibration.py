@@ -1,12 +1,12 @@
-"""Scenario version 1: procedural obstacles drawn around SafeLIBERO's own spots (calibration.py, place_at_anchor),
-on the pure placement function and on real LIBERO scenes."""
+"""Scenario versions 1 and 2: procedural obstacles drawn around SafeLIBERO's own spots (calibration.py,
+place_at_anchor), on the pure placement function and on real LIBERO scenes; version 2's scene edits."""
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import detaug_gym  # noqa: F401
-from detaug_gym.envs.calibration import ANCHORS, JITTER, Anchor, anchor_for, cell_types
+from detaug_gym.envs.calibration import ANCHORS, JITTER, Anchor, anchor_for, anchors_for, cell_types, scene_edit
 from detaug_gym.envs.obstacles import BASES, OBSTACLE_SETS
 from detaug_gym.envs.placement import (
     ANCHOR_ROUNDS,
@@ -113,12 +113,13 @@ def test_v1_obstacles_stand_on_safelibero_bases_with_its_sizes_and_stay_still(sp
 
 
 def test_v0_ids_keep_the_old_generator_and_versions_are_checked():
-    assert SUITES["spatial"].env_id("L2") == "SafeLibero-Spatial-L2-v1"
+    assert SUITES["spatial"].env_id("L2") == "SafeLibero-Spatial-L2-v2"
+    assert SUITES["spatial"].env_id("L2", version=1) == "SafeLibero-Spatial-L2-v1"
     assert SUITES["spatial"].env_id("L2", version=0) == "SafeLibero-Spatial-L2-v0"
     assert SUITES["spatial"].env_id("Free", version=0) == SUITES["spatial"].env_id("Free")
-    with pytest.raises(ValueError, match="its versions: 0, 1"):
+    with pytest.raises(ValueError, match="its versions: 0, 1, 2"):
         SUITES["spatial"].env_id("L1", version=7)
-    with pytest.raises(ValueError, match="unknown scenario version 7; valid: 0, 1"):
+    with pytest.raises(ValueError, match="unknown scenario version 7; valid: 0, 1, 2"):
         SafeLiberoEnv("spatial", "L1", version=7)
     env = gym.make("SafeLibero-Spatial-L2-v0", task=2)
     _, info = env.reset(seed=0)
@@ -128,17 +129,87 @@ def test_v0_ids_keep_the_old_generator_and_versions_are_checked():
     env.close()
 
 
-def test_the_bench_runs_v1_by_default_and_v0_on_request():
+def test_the_bench_runs_v2_by_default_older_versions_on_request_and_official_under_one_id():
     from detaug_gym import bench
 
     def ids(**kw):
         cfg = bench.BenchConfig(methods=["scripted"], suites=["spatial"], levels=["1", "free"], episodes=1, **kw)
         return sorted({j.key.env_id for j in bench.plan_jobs(cfg.methods, cfg.suites, ["L1", "Free"], 1, 0, cfg=cfg)})
 
-    assert ids() == ["SafeLibero-Spatial-Free-v0", "SafeLibero-Spatial-L1-v1"]
+    assert ids() == ["SafeLibero-Spatial-Free-v0", "SafeLibero-Spatial-L1-v2"]
+    assert ids(scenario_version=1) == ["SafeLibero-Spatial-Free-v0", "SafeLibero-Spatial-L1-v1"]
     assert ids(scenario_version=0) == ["SafeLibero-Spatial-Free-v0", "SafeLibero-Spatial-L1-v0"]
     assert "procedural -v0" in " ".join(bench.BenchConfig(scenario_version=0).notes())
-    with pytest.raises(ValueError, match="unknown --scenario-version 3; valid: 0, 1"):
+    assert "before SafeLIBERO's scene edits" in " ".join(bench.BenchConfig(scenario_version=1).notes())
+    # Official episodes do not depend on the procedural version: one id keeps their result folders resumable.
+    official = bench.BenchConfig(methods=["scripted"], suites=["spatial"], levels=["1"], episodes=1,
+                                 scenarios="official")
+    assert {j.key.env_id for j in bench.plan_jobs(["scripted"], ["spatial"], ["L1"], 1, 0, cfg=official)} == {
+        "SafeLibero-Spatial-L1-v1"}
+    with pytest.raises(ValueError, match="unknown --scenario-version 3; valid: 0, 1, 2"):
         bench.BenchConfig(scenario_version=3)
     with pytest.raises(ValueError, match="--scenarios official has one"):
         bench.BenchConfig(scenario_version=0, scenarios="official")
+
+
+def test_every_v2_task_has_weighted_per_type_anchors_and_a_scene_edit():
+    for (suite, level) in ANCHORS:
+        for task in range(len(SUITES[suite].tasks_for(level))):
+            anchors = anchors_for(suite, level, task)
+            assert anchors and all(len(a.types) == 1 and a.weight > 0 for a in anchors), (suite, level, task)
+            assert {a.types[0] for a in anchors} <= set(OBSTACLE_SETS[2])
+            assert all(a.base in (None, *BASES) for a in anchors)
+            edit = scene_edit(suite, level, task)
+            assert not set(edit.moved) & set(edit.removed)
+    # SafeLIBERO hand-sets spots per type: Spatial L1 task 0's storage box stands on the other side of its moka pot.
+    spots = {a.types[0]: a.along for a in anchors_for("spatial", "L1", 0)}
+    assert spots["white_storage_box"] < 0 < spots["moka_pot"]
+    assert cell_types("object", "L1", version=2) == ("wine_bottle",)
+    assert scene_edit("goal", "L2", 2).fixtures["flat_stove_1"] == pytest.approx((-0.099, 0.206))  # stove moved
+    with pytest.raises(KeyError, match="version 2"):
+        anchors_for("newton", "L2", 0)
+
+
+def _xy(env, name):
+    scene = env.unwrapped.scene
+    return scene.data.xpos[scene.body_id(name)][:2].copy()
+
+
+def test_v2_moves_objects_and_fixtures_and_takes_distractors_off_as_safelibero_does():
+    """Object L1 task 0: SafeLIBERO moves the orange juice 7 cm and leaves the bbq sauce and butter out; the same
+    LIBERO init state under -v1 keeps LIBERO's layout."""
+    edit = scene_edit("object", "L1", 0)
+    assert edit.moved and set(edit.removed) == {"bbq_sauce_1", "butter_1"}
+    v1, v2 = gym.make("SafeLibero-Object-L1-v1", task=0), gym.make("SafeLibero-Object-L1-v2", task=0)
+    for state in (0, 7):
+        v1.reset(seed=state, options={"init_state": state})
+        _, info = v2.reset(seed=state, options={"init_state": state})
+        for name, shift in edit.moved.items():
+            assert np.allclose(_xy(v2, name) - _xy(v1, name), shift, atol=0.01), name
+        for name in edit.removed:
+            assert np.all(np.abs(_xy(v2, name)) > 1.0) and np.all(np.abs(_xy(v1, name)) < 0.5), name
+        assert not info["collision"]
+    v1.close()
+    v2.close()
+    stove = scene_edit("goal", "L2", 2).fixtures["flat_stove_1"]
+    v1, v2 = gym.make("SafeLibero-Goal-L2-v1", task=2), gym.make("SafeLibero-Goal-L2-v2", task=2)
+    for seed in range(2):  # the shift holds across resets (every reset restores the nominal body poses)
+        v1.reset(seed=seed, options={"init_state": 3})
+        v2.reset(seed=seed, options={"init_state": 3})
+        assert np.allclose(_xy(v2, "flat_stove_1") - _xy(v1, "flat_stove_1"), stove, atol=1e-6)
+    v1.close()
+    v2.close()
+
+
+def test_v2_draws_the_anchor_of_the_asked_type():
+    env = gym.make("SafeLibero-Spatial-L1-v2", task=0)
+    problem_axis = []
+    for kind in ("moka_pot", "white_storage_box"):
+        _, info = env.reset(seed=0, options={"obstacle": kind})
+        assert info["obstacle"] == kind
+        placement = env.unwrapped.episode.placement
+        pick, place = placement.problem.pick.center, placement.problem.place.center
+        along = (placement.xy - pick) @ (place - pick) / np.sum((place - pick) ** 2)
+        problem_axis.append(along)
+    assert problem_axis[1] < problem_axis[0]  # the box's spot lies behind the pot's along the path
+    env.close()

@@ -37,8 +37,8 @@ def newton_cylinder():
     env.close()
 
 
-def test_all_twenty_two_ids_registered_and_namespaced():
-    assert len(ALL_IDS) == 22  # 4 suites x (L1, L2 at v1 and v0, Free) + Newton's 2
+def test_all_thirty_ids_registered_and_namespaced():
+    assert len(ALL_IDS) == 30  # 4 suites x (L1, L2 at v2, v1 and v0, Free) + Newton's 2
     for env_id in ALL_IDS:
         assert env_id in gym.registry
     env = gym.make("detaug_gym:SafeLibero-Goal-Free-v0")  # no scene is built before reset

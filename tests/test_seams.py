@@ -31,7 +31,7 @@ def test_registry_answers_every_suite_question_newton_included():
     assert suite_of_env("detaug_gym:SafeLibero-Long-L1-v0") == (SUITES["long"], "L1")
     with pytest.raises(ValueError, match="its levels: L2, Free"):
         SUITES["newton"].env_id("L1")
-    with pytest.raises(ValueError, match="registered ids: SafeLibero-Spatial-L1-v1"):
+    with pytest.raises(ValueError, match="registered ids: SafeLibero-Spatial-L1-v2"):
         suite_of_env("SafeLibero-Kitchen-L1-v0")
     with pytest.raises(ValueError, match="valid suites: spatial, object, goal, long, newton"):
         get_suite("kitchen")

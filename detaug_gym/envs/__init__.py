@@ -1,8 +1,9 @@
 """Registered gymnasium envs, one per (suite, level) of :data:`~detaug_gym.envs.suites.SUITES`. Importing this
 module registers the ids; MuJoCo loads only at ``make``.
 
-    SafeLibero-{Spatial,Object,Goal,Long}-{L1,L2}-v1   procedural scenarios calibrated to the official ones
+    SafeLibero-{Spatial,Object,Goal,Long}-{L1,L2}-v2   procedural scenarios calibrated to the official ones
     SafeLibero-{Spatial,Object,Goal,Long}-Free-v0      no obstacle (LIBERO's scenes)
+    SafeLibero-{Spatial,Object,Goal,Long}-{L1,L2}-v1   calibrated spots on LIBERO's unedited layouts (kept)
     SafeLibero-{Spatial,Object,Goal,Long}-{L1,L2}-v0   the procedural scenarios before the calibration (kept)
     Newton-PickPlace-v0, Newton-PickPlace-Cylinder-v0
 

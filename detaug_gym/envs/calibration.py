@@ -1,4 +1,4 @@
-"""Procedural scenarios calibrated to the official SafeLIBERO ones (the ``-v1`` ids of L1 and L2).
+"""Procedural scenarios calibrated to the official SafeLIBERO ones (the ``-v1`` and ``-v2`` ids of L1 and L2).
 
 SafeLIBERO sets its obstacles by hand, per task and level: a few types, on a movable base or not, at one spot
 relative to the object to pick with about 1 cm of jitter. Version 1 of the procedural scenarios keeps what makes
@@ -17,11 +17,24 @@ makes one: a distractor standing on the drawn spot is taken off the table (SafeL
 Not made: pick objects moved 7-21 cm, distractors swapped, the Goal stove moved; LIBERO's layouts stay. Where the
 spot is blocked (a fixture, the hand's start), the jitter widens, then the direction is freed at the anchor's
 distance; failing that, the least-overlapping spot is used (``Placement.relaxed``).
+
+Version 2 (:func:`anchors_for`, :func:`scene_edit`) follows SafeLIBERO closer in the two ways version 1 left out:
+its spots are set per obstacle type (a task's moka pot and its book stand in different places), so a task has one
+anchor per type, drawn as often as SafeLIBERO uses that type; and its scene edits are made (:class:`SceneEdit`):
+objects and fixtures stand where SafeLIBERO's episodes put them (each moved by the difference of the medians
+of SafeLIBERO's and LIBERO's init states, so LIBERO's per-episode jitter stays), and the objects SafeLIBERO parks
+off the table are taken off. Its numbers are measured, not set: ``SAFELIBERO_ROOT=... python
+benchmarks/placement_fidelity.py --calibrate`` writes them to ``calibration_v2.json`` beside this module. One
+edit is not made: where SafeLIBERO swaps a distractor for an object the LIBERO scene does not hold (Long's two
+mug tasks: a pudding or a bowl for the red mug), the red mug is taken off and nothing takes its place.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+from dataclasses import dataclass, field
+from functools import cache
+from importlib import resources
 
 JITTER = 0.025  # m, uniform either side of the anchor, along and across the path
 
@@ -42,15 +55,32 @@ class Anchor:
         along: where its centre projects on the pick -> place path, as a fraction of the path's length (0 at the
             pick object's centre, 1 at the place target's; outside [0, 1] before or past them).
         lateral: its centre's offset from that path (m, positive to the left of the pick -> place direction).
+        weight: how often the anchor is drawn among its task's (version 2: SafeLIBERO's episodes with its type).
     """
 
     types: tuple[str, ...]
     base: str | None
     along: float
     lateral: float
+    weight: int = 1
 
 
-# (suite, level) -> one anchor per task, in the order of SuiteSpec.tasks_for(level).
+@dataclass(frozen=True)
+class SceneEdit:
+    """SafeLIBERO's changes to a task's LIBERO scene at one level (version 2).
+
+    Attributes:
+        moved: free object name -> xy shift (m) added to its position in LIBERO's init states.
+        fixtures: fixture name -> xy shift (m) of its body, made once when the scene is built.
+        removed: free objects taken off the table at every reset.
+    """
+
+    moved: dict[str, tuple[float, float]] = field(default_factory=dict)
+    fixtures: dict[str, tuple[float, float]] = field(default_factory=dict)
+    removed: tuple[str, ...] = ()
+
+
+# Version 1: (suite, level) -> one anchor per task, in the order of SuiteSpec.tasks_for(level).
 ANCHORS: dict[tuple[str, str], tuple[Anchor, ...]] = {
     ("spatial", "L1"): (Anchor(_ALL6, None, 0.02, -0.145), Anchor(_ALL6, None, 0.56, 0.024),
                         Anchor(_ALL6, None, 0.40, 0.001),
@@ -82,15 +112,48 @@ ANCHORS: dict[tuple[str, str], tuple[Anchor, ...]] = {
 }
 
 
-def anchor_for(suite: str, level: str, task: int) -> Anchor:
-    """The anchor of ``task`` (index into the level's tasks); ``KeyError`` for a cell without one."""
+CALIBRATION_FILE = "calibration_v2.json"  # version 2's measured anchors and scene edits, beside this module
+
+
+@cache
+def _version2() -> dict:
+    return json.loads(resources.files(__package__).joinpath(CALIBRATION_FILE).read_text())
+
+
+def _task_entry(suite: str, level: str, task: int, version: int):
     try:
-        return ANCHORS[(suite, level)][task]
+        if version == 1:
+            return ANCHORS[(suite, level)][task]
+        return _version2()["cells"][f"{suite} {level}"][task]
     except (KeyError, IndexError):
-        raise KeyError(f"no calibrated obstacle anchor for {suite} {level} task {task}; cells with anchors: "
-                       f"{', '.join(f'{s} {lv}' for s, lv in ANCHORS)}") from None
+        cells = ANCHORS if version == 1 else [tuple(c.split()) for c in _version2()["cells"]]
+        raise KeyError(f"no calibrated obstacle anchor for {suite} {level} task {task} (version {version}); "
+                       f"cells with anchors: {', '.join(f'{s} {lv}' for s, lv in cells)}") from None
 
 
-def cell_types(suite: str, level: str) -> tuple[str, ...]:
-    """Every obstacle type a cell draws, in first-seen order."""
-    return tuple(dict.fromkeys(t for a in ANCHORS[(suite, level)] for t in a.types))
+def anchors_for(suite: str, level: str, task: int, version: int = 2) -> tuple[Anchor, ...]:
+    """The anchors of ``task`` (index into the level's tasks) at scenario ``version`` (1: one per task; 2: one per
+    obstacle type, weighted by SafeLIBERO's use); ``KeyError`` for a cell without them."""
+    entry = _task_entry(suite, level, task, version)
+    if version == 1:
+        return (entry,)
+    return tuple(Anchor((a["type"],), a["base"], a["along"], a["lateral"], a["weight"]) for a in entry["anchors"])
+
+
+def anchor_for(suite: str, level: str, task: int) -> Anchor:
+    """Version 1's anchor of ``task``; ``KeyError`` for a cell without one."""
+    return anchors_for(suite, level, task, version=1)[0]
+
+
+def scene_edit(suite: str, level: str, task: int) -> SceneEdit:
+    """Version 2's edit of ``task``'s LIBERO scene (see :class:`SceneEdit`)."""
+    entry = _task_entry(suite, level, task, 2)
+    return SceneEdit({k: tuple(v) for k, v in entry["moved"].items()},
+                     {k: tuple(v) for k, v in entry["fixtures"].items()}, tuple(entry["removed"]))
+
+
+def cell_types(suite: str, level: str, version: int = 1) -> tuple[str, ...]:
+    """Every obstacle type a cell draws at ``version``, in first-seen order."""
+    tasks = len(ANCHORS[(suite, level)])
+    return tuple(dict.fromkeys(t for i in range(tasks) for a in anchors_for(suite, level, i, version)
+                               for t in a.types))

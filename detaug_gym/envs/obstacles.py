@@ -1,10 +1,11 @@
 """SafeLIBERO's obstacle set, added to a robosuite model as free bodies that start parked.
 
-Two procedural sets (:data:`OBSTACLE_SETS`), one per scenario version of the env ids. Version 0 (``-v0``): the six
+Two procedural sets (:data:`OBSTACLE_SETS`), by scenario version of the env ids. Version 0 (``-v0``): the six
 types at LIBERO's own scale and two static pedestals. Version 1 (``-v1``, calibrated to the official SafeLIBERO
 scenarios, :mod:`~detaug_gym.envs.calibration`): the nine types SafeLIBERO uses (its moka pot, milk and wine
 bottle enlarged 1.6 / 2 / 1.6 times, LIBERO's scale as the ``_small`` ones, the storage box lying on its side) and
 two free, movable bases with the outer size of SafeLIBERO's (``box_base`` 14 cm tall, ``box_small_base`` 7.6 cm).
+Version 2 (``-v2``) changes where obstacles stand and the scene around them, not the set: it compiles version 1's.
 Every type and base of a set is compiled into the model once, so that an episode can switch the active obstacle
 with a soft reset. Inactive obstacles are parked far below the
 scene with contacts and gravity switched off; the active one gets its contacts and gravity back and is
@@ -54,6 +55,7 @@ OBSTACLE_SETS: dict[int, dict[str, ObstacleVariant]] = {
         "white_storage_box": ObstacleVariant("white_storage_box", upright_x=np.pi / 2),
         "red_coffee_mug": ObstacleVariant("red_coffee_mug"), "yellow_book": ObstacleVariant("yellow_book")},
 }
+OBSTACLE_SETS[2] = OBSTACLE_SETS[1]
 OBSTACLE_TYPES = tuple(OBSTACLE_SETS[0])  # version 0's types, in its compile order
 # Version 1's movable bases: free boxes with the outer size of SafeLIBERO's (half-extents, m) and its density.
 BASES: dict[str, np.ndarray] = {

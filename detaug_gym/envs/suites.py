@@ -9,7 +9,7 @@ level (L2, the cylinder on the path).
 
     >>> from detaug_gym.envs.suites import SUITES, suite_of_env
     >>> SUITES["spatial"].env_id("L2")
-    'SafeLibero-Spatial-L2-v1'
+    'SafeLibero-Spatial-L2-v2'
     >>> SUITES["spatial"].env_id("L2", version=0)
     'SafeLibero-Spatial-L2-v0'
     >>> suite_of_env("Newton-PickPlace-Cylinder-v0")
@@ -24,7 +24,10 @@ LEVELS = ("L1", "L2", "Free")
 LEVEL_ALIASES = {"1": "L1", "l1": "L1", "2": "L2", "l2": "L2", "free": "Free"}
 NUM_INIT_STATES = 50  # LIBERO's official init states per task (and Newton's fixed layouts)
 ENV_PREFIX = "detaug_gym:"  # gymnasium's "module:EnvId" form
-SCENARIO_VERSION = 1  # the current procedural scenarios of SafeLIBERO's L1/L2 ids
+SCENARIO_VERSION = 2  # the current procedural scenarios of SafeLIBERO's L1/L2 ids
+# Official episodes are the same under every version's id; the bench files them under the -v1 id (where it first
+# did), so a results folder stays resumable when the procedural scenarios get a new version.
+OFFICIAL_ID_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -58,7 +61,8 @@ class SuiteSpec:
         object_slots: rows of the ``object_poses`` observation (task-relevant objects, zero padded).
         ids: env id per level (the levels this suite has), the current scenario version.
         legacy_ids: ``{version: {level: env id}}`` of older scenario versions that stay registered and reproducible
-            (SafeLIBERO's L1/L2 ``-v0``: the procedural scenarios before their calibration to the official ones).
+            (SafeLIBERO's L1/L2 ``-v0``: the procedural scenarios before their calibration to the official ones;
+            ``-v1``: calibrated spots on LIBERO's unedited layouts).
         entry_point: gymnasium entry point of its env class; ``kwargs`` per level are given by ``env_kwargs``.
         max_grasps: most grasps of any task (DetAug's label has 4 entries per grasp).
         num_init_states: init states per task (LIBERO's 50 official ones; Newton's 50 fixed layouts).
@@ -178,11 +182,11 @@ def parse_level(level: str) -> str:
 
 def _safelibero(name: str, max_steps: int, tasks: tuple[TaskSpec, ...], level_tasks: dict, object_slots: int,
                 max_grasps: int, aegis_max_steps: int, infeasible: dict | None = None) -> SuiteSpec:
-    # Version 1 (L1/L2): procedural scenarios calibrated to the official ones (docs/scenarios.md); the Free level
-    # has no obstacle and keeps -v0.
+    # Version 2 (L1/L2): procedural scenarios calibrated to the official ones, with SafeLIBERO's scene edits
+    # (docs/scenarios.md); versions 0 and 1 stay registered. The Free level has no obstacle and keeps -v0.
     ids = {level: f"SafeLibero-{name.capitalize()}-{level}-v{SCENARIO_VERSION if level != 'Free' else 0}"
            for level in LEVELS}
-    legacy = {0: {level: f"SafeLibero-{name.capitalize()}-{level}-v0" for level in ("L1", "L2")}}
+    legacy = {v: {level: f"SafeLibero-{name.capitalize()}-{level}-v{v}" for level in ("L1", "L2")} for v in (0, 1)}
     return SuiteSpec(name, max_steps, tasks, level_tasks, object_slots, ids,
                      "detaug_gym.envs.safe_libero:SafeLiberoEnv", max_grasps,
                      level_kwargs={level: {"suite": name, "level": level, "version": 0} for level in LEVELS},
