@@ -44,8 +44,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--points", type=int, nargs="+", default=[300, 1000, 3000])
+    parser.add_argument("--env", default="SafeLibero-Spatial-L2-v2", help="a registered SafeLibero L1/L2 id")
     args = parser.parse_args()
-    env = gym.make("SafeLibero-Spatial-L2-v0")
+    env = gym.make(args.env)
     expert = make_policy("scripted", suite="spatial")
     robots = {n: RobotGeometry.panda(num_points=n) for n in args.points}
     robot_err: dict[int, list[float]] = {n: [] for n in args.points}

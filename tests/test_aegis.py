@@ -37,7 +37,7 @@ def box_observation(centre=OBSTACLE_POS, half=(0.04, 0.05, 0.10), quat=(0.0, 0.0
 def commanded_barrier(action: np.ndarray, obs: dict, flt: CBFFilter = FILTER) -> float:
     """Exact barrier at the pose the action commands (OSC_POSE goal), not its linearisation."""
     goal, rotation = action_to_goal(obs["eef_pos"], quat_xyzw_to_mat(obs["eef_quat"]), action)
-    return barrier(*flt.end_effector.placed(goal, rotation), *flt.obstacle_ellipsoid(obs))[0]
+    return barrier(*flt.end_effector.placed(goal, rotation), *flt.obstacle_ellipsoids(obs)[0])[0]
 
 
 unit = st.floats(-1.0, 1.0, allow_nan=False)
@@ -93,7 +93,7 @@ def test_correction_is_the_projection_when_the_box_is_slack():
     action = np.array([0.0, 0.6, 0.0, 0.0, 0.0, 0.0, -1.0], np.float32)  # straight at the obstacle
     filtered, step = FILTER(action, obs)
     assert step.active and step.feasible
-    h, g, b = FILTER.constraint(action, obs, FILTER.obstacle_ellipsoid(obs))
+    h, g, b = FILTER.constraint(action, obs, FILTER.obstacle_ellipsoids(obs)[0])
     a = action[:3].astype(np.float64)
     projection = a + (b - g @ a) / (g @ g) * g  # closed form of the one-constraint QP
     assert np.abs(projection).max() < 1.0
@@ -115,7 +115,7 @@ def test_nonnegative_barrier_means_the_ellipsoids_are_apart(offset, quat):
     obs = box_observation(eef=OBSTACLE_POS + offset, eef_quat=quat)
     rotation = quat_xyzw_to_mat(quat)
     centre, q_ee = FILTER.end_effector.placed(obs["eef_pos"], rotation)
-    obs_centre, q_obs = FILTER.obstacle_ellipsoid(obs)
+    obs_centre, q_obs = FILTER.obstacle_ellipsoids(obs)[0]
     h, _ = barrier(centre, q_ee, obs_centre, q_obs)
     if h < 0:
         return
@@ -141,7 +141,7 @@ def test_obstacle_ellipsoid_encloses_the_points_when_posed_and_moved(monkeypatch
     yaw = np.array([0.0, 0.0, np.sin(0.4), np.cos(0.4)])
     for centre, quat in ((OBSTACLE_POS, (0, 0, 0, 1)), (OBSTACLE_POS + [0.1, -0.05, 0.0], yaw)):
         obs = box_observation(centre=centre, quat=quat)
-        c, q = flt.obstacle_ellipsoid(obs)
+        c, q = flt.obstacle_ellipsoids(obs)[0]
         diff = obs["obstacle_points"].astype(np.float64) - c
         assert np.all(np.einsum("ni,ij,nj->n", diff, np.linalg.inv(q), diff) <= 1.0 + 1e-6)
     assert len(shapes) == 1 and "mvee" in shapes.lookup(obstacle_local_points(obs)).products  # fitted once
@@ -187,3 +187,44 @@ def test_missing_checkpoint_or_base_fails_at_construction(tmp_path):
         make_policy("aegis", suite="spatial", checkpoint=str(tmp_path / "nothing"))
     with pytest.raises(KeyError, match="unknown policy"):
         make_policy("aegis", base="no_such_policy")
+
+
+def with_support(obs: dict, centre, half=(0.07, 0.06, 0.07)) -> dict:
+    """``obs`` with a box support (pedestal or base) at ``centre``: the env's ``obstacle_support_*`` entries."""
+    corners = np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T * half
+    points, _ = trimesh.sample.sample_surface(trimesh.creation.box(extents=2 * np.asarray(half)), 120, seed=1)
+    local = np.concatenate([corners, points])
+    return {**obs, "obstacle_support_points": (local + centre).astype(np.float32),
+            "obstacle_support_local_points": local, "obstacle_support_mask": np.ones(1, np.float32),
+            "obstacle_support_pose": np.r_[centre, 0, 0, 0, 1].astype(np.float32)}
+
+
+def test_the_support_gets_its_own_barrier_and_the_qp_keeps_both():
+    """Hand moving down onto the base beside the obstacle: only the support's barrier objects, and the filtered
+    action satisfies both linearised barriers; without ``support`` the base is ignored."""
+    base_centre = OBSTACLE_POS + np.array([0.0, -0.25, -0.17])
+    obs = with_support(box_observation(eef=base_centre + np.array([0.0, 0.0, 0.24])), base_centre)
+    flt = CBFFilter()
+    ellipsoids = flt.obstacle_ellipsoids(obs)
+    assert len(ellipsoids) == 2 and len(CBFFilter(support=False).obstacle_ellipsoids(obs)) == 1
+    np.testing.assert_allclose(ellipsoids[1][0], base_centre, atol=1e-6)  # the box's MVEE sits on its centre
+    down = np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0], np.float32)
+    filtered, step = flt(down, obs)
+    assert step.active and step.feasible
+    for ellipsoid in ellipsoids:
+        _, g, b = flt.constraint(filtered, obs, ellipsoid)
+        assert g @ filtered[:3] >= b - 1e-9
+    assert CBFFilter(support=False)(down, obs)[1].active is False  # blind to the base: nothing to correct
+
+
+def test_multi_row_qp_is_the_projection_onto_both_half_spaces():
+    """Two barrier rows: OSQP's answer equals the closed form (the nominal projected onto the intersection of
+    two half-spaces whose boundaries cross inside the box)."""
+    flt = CBFFilter()
+    g = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    b = np.array([0.2, 0.3])
+    x, feasible = flt.solve(np.array([-0.5, -0.5, 0.4]), g, b)
+    assert feasible
+    np.testing.assert_allclose(x, [0.2, 0.3, 0.4], atol=1e-7)
+    x, feasible = flt.solve(np.zeros(3), g, np.array([0.2, 3.5]))  # row 2 cannot be met inside the box
+    assert not feasible and x[1] == 1.0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+import torch
 
 from detaug_gym.actions import (
     ACTION_DIM,
@@ -211,8 +212,31 @@ def test_sdf_and_ellipsoid_share_the_shape_entry(monkeypatch):
     local = np.concatenate([box, np.random.default_rng(8).uniform(-0.03, 0.03, (20, 3))])
     obs = _obstacle_obs(local, [0.1, -0.2, 0.9], YAWED)
     sdf = obstacle_sdf(obs, spacing=0.02)
-    assert CBFFilter().obstacle_ellipsoid(obs) is not None
+    assert len(CBFFilter().obstacle_ellipsoids(obs)) == 1  # no support in this observation
     entry = shapes.lookup(obstacle_local_points(obs))
     assert len(shapes) == 1 and {"hull", ("sdf", 0.02, 0.1), "mvee"} <= set(entry.products)
     assert sdf.grid is entry.products[("sdf", 0.02, 0.1)] and sdf.mesh is entry.products["hull"]
     assert obstacle_sdf({**obs, "obstacle_mask": np.zeros(1)}).empty
+
+
+def test_the_support_is_a_second_part_of_the_obstacle_view_and_of_its_sdf():
+    from detaug_gym.geometry import UnionSDF, obstacle_parts, obstacle_sdf
+
+    obs = _obstacle_obs(LOCAL, [0.1, 0.0, 0.9], YAWED)
+    assert obstacle_parts(obs) == ("obstacle",) and not has_obstacle(obs, "obstacle_support")
+    support = np.array(np.meshgrid(*[[-0.06, 0.06]] * 3)).reshape(3, -1).T
+    obs.update(obstacle_support_local_points=support, obstacle_support_points=(support + [0.1, 0.0, 0.78]),
+               obstacle_support_pose=np.r_[0.1, 0.0, 0.78, 0, 0, 0, 1.0], obstacle_support_mask=np.ones(1))
+    assert obstacle_parts(obs) == ("obstacle", "obstacle_support")
+    assert obstacle_parts({**obs, "obstacle_mask": np.zeros(1)}) == ()  # no obstacle: no support either
+    union, alone = obstacle_sdf(obs, spacing=0.02), obstacle_sdf(obs, spacing=0.02, support=False)
+    assert isinstance(union, UnionSDF) and not isinstance(alone, UnionSDF)
+    assert not isinstance(obstacle_sdf({**obs, "obstacle_support_mask": np.zeros(1)}), UnionSDF)
+    probe = torch.tensor([[0.1, 0.0, 0.78], [0.1, 0.0, 0.9], [0.1, 0.0, 1.2]], dtype=torch.float64)
+    inside_base, at_obstacle, above = union(probe).tolist()
+    assert inside_base < -0.03 and alone(probe)[0] > 0.0  # the base's centre: inside the union only
+    assert at_obstacle == pytest.approx(float(alone(probe)[1]), abs=1e-9) and above > 0.0
+    centre, radius = union.bounding_sphere()
+    for part in union.parts:  # the union's ball holds each part's ball
+        c, r = part.bounding_sphere()
+        assert np.linalg.norm(c - centre) + r <= radius + 1e-9

@@ -54,7 +54,7 @@ def test_default_panda_aligned_to_the_observation_matches_the_scene(libero):
 def test_obstacle_sdf_and_costs_on_the_observation(libero):
     env, obs, info = libero
     assert obs["obstacle_mask"][0] == 1.0
-    sdf = obstacle_sdf(obs)
+    sdf = obstacle_sdf({**obs, "obstacle_support_mask": np.zeros(1, np.float32)})  # the obstacle's own hull
     on_surface = sdf(torch.tensor(obs["obstacle_points"], dtype=torch.float64))
     assert on_surface.max() < sdf.grid.spacing  # on the hull (or inside it, from concave parts)
     # the hull is built from the exact local samples (obstacle_local_points); the world points are their float32
@@ -64,6 +64,7 @@ def test_obstacle_sdf_and_costs_on_the_observation(libero):
     assert sdf(centroid) < 0
     robot = RobotGeometry.from_model(env.scene.model)
     q = torch.tensor(obs["robot_joint_pos"], dtype=torch.float64)
+    sdf = obstacle_sdf(obs)  # with what it stands on, as the env's clearance
     nearest = sdf(robot.surface_points(q, torch.tensor(obs["gripper_qpos"], dtype=torch.float64))).min().item()
     assert abs(nearest - info["min_clearance"]) < 0.05  # sampled robot surface vs the env's exact clearance
     plans = q + torch.zeros(32, 50, 7, dtype=torch.float64)
@@ -93,7 +94,7 @@ def test_scorer_clearance_is_within_detaug_inflation_of_the_exact_one(libero):
                 continue
             exact = scene.min_distance(obstacle)
             if 0.0 < exact < 0.04:
-                now = env.observe()
+                now = {**env.observe(), "obstacle_support_mask": np.zeros(1, np.float32)}  # the obstacle's part
                 sdf = obstacle_sdf(now)
                 errors.append(float(robot_clearance(torch.as_tensor(q), now, sdf)) - exact)
     finally:
@@ -102,3 +103,39 @@ def test_scorer_clearance_is_within_detaug_inflation_of_the_exact_one(libero):
     errors = np.array(errors)
     assert errors.max() < DetAugOptions().inflate, f"scorer saw up to {errors.max():.4f} m more room"
     assert errors.min() > -0.02  # and it does not invent contact where there is 2 cm of room
+
+
+def test_the_base_under_a_calibrated_obstacle_is_part_of_the_scorer_view():
+    """-v2 obstacles stand on SafeLIBERO's bases, and knocking the base moves the obstacle. The observation
+    shows the base (``obstacle_support_*``) and the SDF every scorer uses includes it: where the robot is nearer
+    the base than the obstacle, the scorer's clearance is within DetAug's ``inflate`` of MuJoCo's exact one,
+    while the obstacle alone would have seen several centimetres more room."""
+    from detaug_gym.geometry import robot_clearance
+    from detaug_gym.policies.options import DetAugOptions
+
+    env = gym.make("SafeLibero-Spatial-L2-v2", task=0).unwrapped
+    obs, info = env.reset(seed=0)
+    scene = env.scene
+    assert info["obstacle_raised"] and obs["obstacle_support_mask"][0] == 1.0
+    base = next(b for b in scene.bases.values()
+                if np.allclose(scene.data.xpos[b.body_id], obs["obstacle_support_pose"][:3], atol=1e-4))
+    obstacle = scene.obstacles[info["obstacle"]].geom_ids
+    rng, near_base, blind = np.random.default_rng(1), [], []
+    centre = obs["obstacle_support_pose"][:3].astype(np.float64)
+    for _ in range(3000):
+        scene.data.qpos[scene.arm_qpos] = obs["robot_joint_pos"] + rng.normal(0.0, 0.6, 7)
+        mujoco.mj_forward(scene.model, scene.data)
+        if np.linalg.norm(scene.eef_pose()[0] - centre) > 0.25:
+            continue
+        to_base, to_obstacle = scene.min_distance(base.geom_ids), scene.min_distance(obstacle)
+        if not 0.0 < to_base < min(to_obstacle, 0.04):
+            continue
+        now = env.observe()
+        q = torch.as_tensor(now["robot_joint_pos"], dtype=torch.float64)
+        near_base.append(float(robot_clearance(q, now, obstacle_sdf(now))) - to_base)
+        alone = {**now, "obstacle_support_mask": np.zeros(1, np.float32)}
+        blind.append(float(robot_clearance(q, alone, obstacle_sdf(alone))) - to_base)
+    env.close()
+    assert len(near_base) >= 5, f"only {len(near_base)} samples near the base"
+    assert max(near_base) < DetAugOptions().inflate and min(near_base) > -0.02
+    assert max(blind) > 0.03  # without the support the scorer misses the base

@@ -21,8 +21,11 @@ from detaug_gym.envs.control import CONTROLLERS, make_stepper
 from detaug_gym.envs.obstacles import (
     OBSTACLE_POINTS,
     OBSTACLE_TYPES,
+    SUPPORT_POINTS,
+    SupportView,
     activate,
     raise_pedestal,
+    support_view,
 )
 from detaug_gym.envs.placement import Placement, PlacementProblem, place_obstacle
 from detaug_gym.envs.scene import OBJECT_POINTS, SETTLE_ACTION, Scene
@@ -67,8 +70,11 @@ class ObstacleManipulationEnv(gym.Env):
         for a slot without a body), ``task_id`` (T,) one-hot, ``obstacle_points`` (256, 3) world-frame surface
         samples, ``obstacle_local_points`` (256, 3) the same samples in the obstacle's own frame (the same
         numbers every episode for a shape: what shape-derived caches are built from), ``obstacle_pose`` (7,),
-        ``obstacle_size`` (3,) half-extents, ``obstacle_mask`` (1,).
-        Obstacle entries are zero (mask 0) without an obstacle.
+        ``obstacle_size`` (3,) half-extents, ``obstacle_mask`` (1,); and what the obstacle stands on (a pedestal
+        or base: touching it moves the obstacle, so it counts with the obstacle for collision, contact and
+        clearance): ``obstacle_support_points`` (128, 3) world-frame surface samples, ``obstacle_support_local_points``
+        (128, 3) the same in the support's frame, ``obstacle_support_pose`` (7,), ``obstacle_support_mask`` (1,).
+        Obstacle entries are zero (mask 0) without an obstacle, support entries without a support.
     Action: ``Box(-1, 1, (7,))``: OSC_POSE delta (scales in :mod:`detaug_gym.actions`) and the gripper
         (-1 open, +1 close). Wrong shapes and non-finite values raise ``ValueError``.
     Info (every step): ``is_success``, ``collision`` (latched), ``robot_obstacle_contact``,
@@ -99,6 +105,7 @@ class ObstacleManipulationEnv(gym.Env):
             raise ValueError(f"unknown settle {settle!r}; valid: {', '.join(SETTLE_MODES)}")
         self.settle = settle
         self._support_geoms: list[int] = []
+        self._support: SupportView | None = None
         if max_steps is not None and not (_is_int(max_steps) and max_steps >= 1):
             raise ValueError(f"max_episode_steps must be a positive integer, got {max_steps!r}")
         self.render_mode = render_mode
@@ -129,6 +136,10 @@ class ObstacleManipulationEnv(gym.Env):
             "obstacle_pose": _box(7),
             "obstacle_size": _box(3, 0.0, np.inf),
             "obstacle_mask": _box(1, 0.0, 1.0),
+            "obstacle_support_points": _box((SUPPORT_POINTS, 3)),
+            "obstacle_support_local_points": _box((SUPPORT_POINTS, 3)),
+            "obstacle_support_pose": _box(7),
+            "obstacle_support_mask": _box(1, 0.0, 1.0),
         })
         self.action_space = spaces.Box(-1.0, 1.0, (ACTION_DIM,), dtype=np.float32)
         self._scenes: dict[int, Scene] = {}
@@ -178,6 +189,7 @@ class ObstacleManipulationEnv(gym.Env):
         self._support_geoms = support
         mujoco.mj_forward(scene.model, scene.data)
         self._settle(self._steppers[task])
+        self._support = support_view(scene.model, scene.data, support)
         self._steps = 0
         self._obstacle_ref = self._obstacle_position()
         self._collided = False
@@ -407,6 +419,10 @@ class ObstacleManipulationEnv(gym.Env):
             "obstacle_pose": np.zeros(7),
             "obstacle_size": np.zeros(3),
             "obstacle_mask": np.zeros(1),
+            "obstacle_support_points": np.zeros((SUPPORT_POINTS, 3)),
+            "obstacle_support_local_points": np.zeros((SUPPORT_POINTS, 3)),
+            "obstacle_support_pose": np.zeros(7),
+            "obstacle_support_mask": np.zeros(1),
         }
         handle = self._active_obstacle()
         if handle is not None:
@@ -418,6 +434,13 @@ class ObstacleManipulationEnv(gym.Env):
             obs["obstacle_pose"] = np.concatenate([pos, quat[[1, 2, 3, 0]]])
             obs["obstacle_size"] = handle.half_extents
             obs["obstacle_mask"] = np.ones(1)
+        if handle is not None and self._support is not None:
+            body = self._support.body_id
+            rot, pos = d.xmat[body].reshape(3, 3), d.xpos[body]
+            obs["obstacle_support_points"] = self._support.local_points @ rot.T + pos
+            obs["obstacle_support_local_points"] = self._support.local_points
+            obs["obstacle_support_pose"] = np.concatenate([pos, d.xquat[body][[1, 2, 3, 0]]])
+            obs["obstacle_support_mask"] = np.ones(1)
         return {k: np.asarray(v, dtype=np.float32) for k, v in obs.items()}
 
 

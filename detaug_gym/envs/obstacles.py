@@ -19,11 +19,19 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+import trimesh
 
 from detaug_gym.envs.placement import PEDESTALS
-from detaug_gym.geometry.meshes import body_collision_mesh, is_collision_geom, sample_surface
+from detaug_gym.geometry.meshes import (
+    body_collision_mesh,
+    geom_pose_in_body,
+    geom_trimesh,
+    is_collision_geom,
+    sample_surface,
+)
 
 OBSTACLE_POINTS = 256  # surface samples per obstacle in the observation
+SUPPORT_POINTS = 128  # surface samples of what the obstacle stands on (a pedestal or base) in the observation
 PARK_DEPTH = -5.0  # z of parked obstacles (below the floor, out of every sensor's way)
 
 
@@ -272,3 +280,40 @@ def raise_pedestal(model: mujoco.MjModel, pedestal: PedestalHandle, xy: np.ndarr
     model.geom_contype[pedestal.geom_id] = 1
     model.geom_conaffinity[pedestal.geom_id] = 1
     return support_z + 2 * pedestal.half[2]
+
+
+@dataclass(frozen=True)
+class SupportView:
+    """What the obstacle stands on (a pedestal or base), as the observation shows it.
+
+    Attributes:
+        body_id: the body whose frame the points are fixed in (the body of the first support geom).
+        local_points: ``(SUPPORT_POINTS, 3)`` points on the support geoms in that body's frame: the vertices of
+            their convex hull (at most half of them), then area-weighted surface samples.
+    """
+
+    body_id: int
+    local_points: np.ndarray
+
+
+def support_view(model: mujoco.MjModel, data: mujoco.MjData, geom_ids: list[int]) -> SupportView | None:
+    """The support geoms ``geom_ids`` (as placed now: ``data`` after ``mj_forward``) as one :class:`SupportView`,
+    or ``None`` without any. Geoms of several bodies are fixed in the first one's frame as they stand now."""
+    if not geom_ids:
+        return None
+    body = int(model.geom_bodyid[geom_ids[0]])
+    rotation = data.xmat[body].reshape(3, 3)
+    to_body = np.eye(4)
+    to_body[:3, :3], to_body[:3, 3] = rotation.T, -rotation.T @ data.xpos[body]
+    parts = []
+    for g in geom_ids:
+        owner = int(model.geom_bodyid[g])
+        world = np.eye(4)
+        world[:3, :3], world[:3, 3] = data.xmat[owner].reshape(3, 3), data.xpos[owner]
+        mesh = geom_trimesh(model, int(g))
+        mesh.apply_transform(to_body @ world @ geom_pose_in_body(model, int(g)))
+        parts.append(mesh)
+    mesh = trimesh.util.concatenate(parts)
+    corners = np.asarray(mesh.convex_hull.vertices)[: SUPPORT_POINTS // 2]  # a hull of samples alone cuts corners
+    samples = sample_surface(mesh, SUPPORT_POINTS - len(corners), seed=0)
+    return SupportView(body, np.concatenate([corners, samples]))

@@ -5,10 +5,12 @@ DetAug's selection scorer, CAPE's guidance, AEGIS's barrier and DemoGen's planne
 - :class:`PandaKinematics`: batched, differentiable torch FK of the Panda built from a MuJoCo model.
 - :class:`RobotSurfacePoints` / :class:`RobotSpheres` / :class:`RobotGeometry`: points sampled on the
   robot's collision meshes and end-effector spheres, placed by the FK.
-- :func:`has_obstacle`, :func:`obstacle_frame`, :func:`obstacle_local_points`, :func:`obstacle_shape`: the
-  obstacle entries of an observation, read in one place, and the one cache of per-shape products.
-- :func:`obstacle_sdf` / :class:`ObstacleSDF`: signed distance (negative inside) to the observed
-  obstacle's convex hull, exact (trimesh + python-fcl) and baked on a grid for fast torch queries.
+- :func:`has_obstacle`, :func:`obstacle_parts`, :func:`obstacle_frame`, :func:`obstacle_local_points`,
+  :func:`obstacle_shape`: the obstacle entries of an observation (the obstacle and what it stands on), read
+  in one place, and the one cache of per-shape products.
+- :func:`obstacle_sdf` / :class:`ObstacleSDF` / :class:`UnionSDF`: signed distance (negative inside) to the
+  observed obstacle's convex hull (and its support's), exact (trimesh + python-fcl) and baked on a grid for
+  fast torch queries.
 - :func:`penetration_cost`, :func:`clearance_cost`, :func:`sphere_cost`, :func:`plan_collision_cost`:
   hinge costs of ``(B, T, 7)`` joint plans.
 - :func:`min_volume_ellipsoid`: Khachiyan's MVEE (AEGIS's obstacle ellipsoid).
@@ -31,10 +33,10 @@ _EXPORTS = {
               "plan_collision_cost", "robot_clearance", "sphere_cost", "surface_hinge_cost"),
     "ellipsoid": ("Ellipsoid", "min_volume_ellipsoid"),
     "kinematics": ("KinematicsResult", "PandaKinematics", "panda_model"),
-    "obstacle_view": ("SHAPES", "CachedShape", "ShapeCache", "has_obstacle", "obstacle_frame",
-                      "obstacle_local_points", "obstacle_shape"),
+    "obstacle_view": ("OBSTACLE", "SHAPES", "SUPPORT", "CachedShape", "ShapeCache", "has_obstacle",
+                      "obstacle_frame", "obstacle_local_points", "obstacle_parts", "obstacle_shape"),
     "robot_points": ("RobotGeometry", "RobotSpheres", "RobotSurfacePoints"),
-    "sdf": ("NO_OBSTACLE_DISTANCE", "ObstacleSDF", "SDFGrid", "bake_sdf_grid", "convex_hull",
+    "sdf": ("NO_OBSTACLE_DISTANCE", "ObstacleSDF", "SDFGrid", "UnionSDF", "bake_sdf_grid", "convex_hull",
             "exact_signed_distance", "obstacle_sdf"),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}

@@ -5,7 +5,10 @@ The env reports (``ObstacleManipulationEnv``): ``obstacle_mask`` (1,) 1 with an 
 obstacle's frame, ``obstacle_points`` (N, 3) world-frame surface samples (N = 256) and ``obstacle_size``
 (3,) half-extents. The samples are fixed in the obstacle's frame and move with its pose, so the points in
 the obstacle frame (:func:`obstacle_local_points`; the env reports them as ``obstacle_local_points``) identify
-its *shape* across episodes and pushes.
+its *shape* across episodes and pushes. What the obstacle stands on (a pedestal or base; touching it moves the
+obstacle) is a second *part* of the view with the same entries under the prefix ``obstacle_support``
+(``obstacle_support_points`` (128, 3), ``..._local_points``, ``..._pose``, ``..._mask``); :func:`obstacle_parts`
+lists the parts an observation holds, and every reader takes the part (default the obstacle itself).
 
 :data:`SHAPES` is the one cache of what is derived from a shape (the convex hull and SDF grids of
 :func:`~detaug_gym.geometry.obstacle_sdf`, AEGIS's ellipsoid fit): a shape is looked up by its local
@@ -31,27 +34,36 @@ SHAPE_CACHE_SIZE = 32  # shapes kept, least recently used dropped first
 T = TypeVar("T")
 
 
-def has_obstacle(obs: Mapping[str, np.ndarray]) -> bool:
-    """Whether the observation holds an obstacle (``obstacle_mask`` >= 0.5; no mask: no obstacle)."""
-    mask = obs.get("obstacle_mask")
-    return mask is not None and float(np.asarray(mask).reshape(-1)[0]) >= MASK_THRESHOLD
+OBSTACLE, SUPPORT = "obstacle", "obstacle_support"  # the parts of the view: the obstacle, what it stands on
 
 
-def obstacle_frame(obs: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """The obstacle frame in the world: position ``(3,)`` and rotation ``(3, 3)`` (float64), from ``obstacle_pose``."""
-    pose = np.asarray(obs["obstacle_pose"], np.float64)
+def has_obstacle(obs: Mapping[str, np.ndarray], part: str = OBSTACLE) -> bool:
+    """Whether the observation holds an obstacle (``obstacle_mask`` >= 0.5; no mask: no obstacle), or with
+    ``part=SUPPORT`` an obstacle standing on a support."""
+    masks = [obs.get(f"{p}_mask") for p in dict.fromkeys((OBSTACLE, part))]
+    return all(m is not None and float(np.asarray(m).reshape(-1)[0]) >= MASK_THRESHOLD for m in masks)
+
+
+def obstacle_parts(obs: Mapping[str, np.ndarray]) -> tuple[str, ...]:
+    """The parts of the obstacle view this observation holds: ``()``, ``(OBSTACLE,)`` or ``(OBSTACLE, SUPPORT)``."""
+    return tuple(p for p in (OBSTACLE, SUPPORT) if has_obstacle(obs, p))
+
+
+def obstacle_frame(obs: Mapping[str, np.ndarray], part: str = OBSTACLE) -> tuple[np.ndarray, np.ndarray]:
+    """The part's frame in the world: position ``(3,)`` and rotation ``(3, 3)`` (float64), from ``<part>_pose``."""
+    pose = np.asarray(obs[f"{part}_pose"], np.float64)
     return pose[:3], quat_xyzw_to_mat(pose[3:7])
 
 
-def obstacle_local_points(obs: Mapping[str, np.ndarray]) -> np.ndarray:
-    """The obstacle's surface samples in its own frame, ``(N, 3)`` float64: the env's ``obstacle_local_points``
-    (the same numbers every episode), or for an observation without them ``obstacle_points`` taken into the
-    obstacle frame (float32 poses jitter those by ~1e-7 m, so what is built from the first one seen then depends
+def obstacle_local_points(obs: Mapping[str, np.ndarray], part: str = OBSTACLE) -> np.ndarray:
+    """The part's surface samples in its own frame, ``(N, 3)`` float64: the env's ``<part>_local_points``
+    (the same numbers every episode), or for an observation without them ``<part>_points`` taken into the
+    part's frame (float32 poses jitter those by ~1e-7 m, so what is built from the first one seen then depends
     on which episode that was)."""
-    if "obstacle_local_points" in obs:
-        return np.asarray(obs["obstacle_local_points"], np.float64)
-    position, rotation = obstacle_frame(obs)
-    return (np.asarray(obs["obstacle_points"], np.float64) - position) @ rotation
+    if f"{part}_local_points" in obs:
+        return np.asarray(obs[f"{part}_local_points"], np.float64)
+    position, rotation = obstacle_frame(obs, part)
+    return (np.asarray(obs[f"{part}_points"], np.float64) - position) @ rotation
 
 
 @dataclass
@@ -102,6 +114,7 @@ class ShapeCache:
 SHAPES = ShapeCache()
 
 
-def obstacle_shape(obs: Mapping[str, np.ndarray], cache: ShapeCache | None = None) -> CachedShape:
-    """The cached shape of the observation's obstacle (default cache :data:`SHAPES`); needs an obstacle."""
-    return (SHAPES if cache is None else cache).lookup(obstacle_local_points(obs))
+def obstacle_shape(obs: Mapping[str, np.ndarray], cache: ShapeCache | None = None, part: str = OBSTACLE
+                   ) -> CachedShape:
+    """The cached shape of the observation's obstacle or another part (default cache :data:`SHAPES`)."""
+    return (SHAPES if cache is None else cache).lookup(obstacle_local_points(obs, part))

@@ -3,7 +3,9 @@
 Convention: **sdf < 0 inside the obstacle**, > 0 outside, in metres (trimesh's own
 ``signed_distance`` has the opposite sign).
 
-Shape of the obstacle: the convex hull of the observation's ``obstacle_points`` (256 surface samples).
+Shape of the obstacle: the convex hull of the observation's ``obstacle_points`` (256 surface samples),
+united (:class:`UnionSDF`, the minimum) with the hull of what it stands on, when the observation shows a
+support (``obstacle_support_points``: a pedestal or base, whose displacement moves the obstacle).
 The observation carries no mesh, the hull is exact to build and to query, and every method sees the
 same shape. It fills concavities (a mug's handle loop, a bottle's neck) and, being the hull of samples,
 can lie a few mm inside the true outline; both are accepted simplifications.
@@ -28,7 +30,7 @@ import numpy as np
 import torch
 import trimesh
 
-from detaug_gym.geometry.obstacle_view import has_obstacle, obstacle_frame, obstacle_shape
+from detaug_gym.geometry.obstacle_view import obstacle_frame, obstacle_parts, obstacle_shape
 
 GRID_SPACING = 0.01  # m; 2 cm cells leave the 2.8 cm thick book with almost no interior nodes
 GRID_PADDING = 0.10  # m beyond the hull's box; covers every clearance margin in use
@@ -191,19 +193,56 @@ class ObstacleSDF:
         return self._tensors[key]
 
 
+class UnionSDF:
+    """Signed distance to the union of posed parts (the obstacle and its support): the minimum over the parts'
+    :class:`ObstacleSDF`, with the same interface."""
+
+    def __init__(self, parts: list[ObstacleSDF]) -> None:
+        if not parts or any(p.empty for p in parts):
+            raise ValueError("a union needs at least one part, none of them empty")
+        self.parts = parts
+
+    @property
+    def empty(self) -> bool:
+        return False
+
+    def bounding_sphere(self) -> tuple[np.ndarray, float]:
+        """World centre ``(3,)`` and radius of a ball holding every part's ball."""
+        balls = [p.bounding_sphere() for p in self.parts]
+        lo = np.min([c - r for c, r in balls], axis=0)
+        hi = np.max([c + r for c, r in balls], axis=0)
+        centre = 0.5 * (lo + hi)
+        return centre, max(float(np.linalg.norm(c - centre)) + r for c, r in balls)
+
+    def __call__(self, points: torch.Tensor) -> torch.Tensor:
+        """Signed distance of world points ``(..., 3)`` -> ``(...,)``: the smallest over the parts."""
+        values = [p(points) for p in self.parts]
+        return torch.stack(values).amin(dim=0) if len(values) > 1 else values[0]
+
+    def exact(self, points: np.ndarray) -> np.ndarray:
+        """Exact signed distance of world points ``(N, 3)``, ``(N,)``."""
+        return np.min([p.exact(points) for p in self.parts], axis=0)
+
+
 def obstacle_sdf(obs: dict[str, np.ndarray], spacing: float = GRID_SPACING,
-                 padding: float = GRID_PADDING) -> ObstacleSDF:
+                 padding: float = GRID_PADDING, support: bool = True) -> ObstacleSDF | UnionSDF:
     """The obstacle SDF of an env observation (one env, unbatched).
 
     Reads the obstacle entries through :mod:`~detaug_gym.geometry.obstacle_view`: ``obstacle_points``
-    (N, 3) world surface samples, ``obstacle_pose`` (7,) pos + xyzw quat and ``obstacle_mask`` (1,). Without
-    an obstacle it returns the empty SDF. The hull and the grid are made once per obstacle shape (its points
-    in its own frame) and process, and re-posed for every observation.
+    (N, 3) world surface samples, ``obstacle_pose`` (7,) pos + xyzw quat and ``obstacle_mask`` (1,), and the
+    same entries of its support. Without an obstacle it returns the empty SDF; with a support (and
+    ``support``), the :class:`UnionSDF` of both. Each hull and grid is made once per shape (its points in its
+    own frame) and process, and re-posed for every observation.
     """
-    if not has_obstacle(obs):
+    parts = [_part_sdf(obs, part, spacing, padding) for part in obstacle_parts(obs)[:None if support else 1]]
+    if not parts:
         return ObstacleSDF(None)
-    position, rotation = obstacle_frame(obs)
-    shape = obstacle_shape(obs)
+    return parts[0] if len(parts) == 1 else UnionSDF(parts)
+
+
+def _part_sdf(obs: dict[str, np.ndarray], part: str, spacing: float, padding: float) -> ObstacleSDF:
+    position, rotation = obstacle_frame(obs, part)
+    shape = obstacle_shape(obs, part=part)
     mesh = shape.product("hull", convex_hull)
     grid = shape.product(("sdf", float(spacing), float(padding)), lambda _: bake_sdf_grid(mesh, spacing, padding))
     return ObstacleSDF(grid, rotation, position, mesh)

@@ -9,7 +9,9 @@ Geometry (all in the world frame, from the observation only):
 - **Obstacle**: the minimum-volume enclosing ellipsoid (Khachiyan, :func:`~detaug_gym.geometry.min_volume_ellipsoid`)
   of ``obstacle_points``. It is fitted once per obstacle shape in the obstacle's own frame (from
   ``obstacle_pose``) and moved with the pose, so a pushed obstacle costs no new fit (the fit lives in the shared
-  shape cache of :mod:`~detaug_gym.geometry.obstacle_view`, next to the SDF grids of the same shape).
+  shape cache of :mod:`~detaug_gym.geometry.obstacle_view`, next to the SDF grids of the same shape). What the
+  obstacle stands on (a pedestal or base, ``obstacle_support_points``) gets its own MVEE and barrier row: the
+  QP keeps every barrier (option ``support``).
 - **End effector**: an ellipsoid fixed to the grip site (``eef_pos`` / ``eef_quat``): semi-axes 0.12 m along
   the finger travel (grip-site x: the palm is ~0.2 m wide), 0.06 m along the palm normal (y) and 0.11 m
   along the tool axis (z), centred 0.056 m from the grip site towards the wrist, so it covers the hand
@@ -61,7 +63,7 @@ import numpy as np
 
 from detaug_gym.actions import CONTROL_DT, POS_SCALE, action_to_goal
 from detaug_gym.geometry.ellipsoid import min_volume_ellipsoid
-from detaug_gym.geometry.obstacle_view import has_obstacle, obstacle_frame, obstacle_shape
+from detaug_gym.geometry.obstacle_view import obstacle_frame, obstacle_parts, obstacle_shape
 from detaug_gym.policies.base import make_policy, policy_class, share_planner
 from detaug_gym.policies.options import AegisOptions
 from detaug_gym.rotations import quat_xyzw_to_mat
@@ -145,13 +147,13 @@ class CBFFilter:
     """
 
     def __init__(self, alpha: float = 10.0, dt: float = CONTROL_DT,
-                 end_effector: EndEffectorEllipsoid | None = None) -> None:
+                 end_effector: EndEffectorEllipsoid | None = None, support: bool = True) -> None:
         if not (alpha > 0 and dt > 0 and alpha * dt <= 1.0):
             raise ValueError(f"need alpha > 0, dt > 0 and alpha * dt <= 1, got alpha={alpha}, dt={dt}")
         self.end_effector = end_effector or EndEffectorEllipsoid()
         if len(self.end_effector.semi_axes) != 3 or min(self.end_effector.semi_axes) <= 0:
             raise ValueError(f"end-effector semi-axes must be 3 positive lengths, got {self.end_effector.semi_axes}")
-        self.alpha, self.dt = float(alpha), float(dt)
+        self.alpha, self.dt, self.support = float(alpha), float(dt), bool(support)
         self._qp = BarrierQP()
 
     def reset(self) -> None:
@@ -161,14 +163,17 @@ class CBFFilter:
         self._qp = BarrierQP()
 
     # ------------------------------------------------------------------ obstacle
-    def obstacle_ellipsoid(self, obs: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
-        """World centre ``(3,)`` and covariance form ``(3, 3)`` of the obstacle's MVEE, or ``None`` without an
-        obstacle. Fitted once per shape in the obstacle frame (the shared shape cache), then posed."""
-        if not has_obstacle(obs):
-            return None
-        position, rotation = obstacle_frame(obs)
-        centre, q_local = obstacle_shape(obs).product("mvee", _local_ellipsoid)
-        return rotation @ centre + position, rotation @ q_local @ rotation.T
+    def obstacle_ellipsoids(self, obs: Mapping[str, np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """World centre ``(3,)`` and covariance form ``(3, 3)`` of the MVEE of each part of the obstacle view:
+        the obstacle, then (with ``support``) what it stands on; empty without an obstacle. Each is fitted once
+        per shape in its own frame (the shared shape cache), then posed."""
+        parts = obstacle_parts(obs)
+        out = []
+        for part in parts if self.support else parts[:1]:
+            position, rotation = obstacle_frame(obs, part)
+            centre, q_local = obstacle_shape(obs, part=part).product("mvee", _local_ellipsoid)
+            out.append((rotation @ centre + position, rotation @ q_local @ rotation.T))
+        return out
 
     # ------------------------------------------------------------------ filtering
     def constraint(self, action: np.ndarray, obs: Mapping[str, np.ndarray], obstacle
@@ -183,34 +188,42 @@ class CBFFilter:
         return h, POS_SCALE * grad, (1.0 - self.alpha * self.dt) * h - h_turned
 
     def __call__(self, action: np.ndarray, obs: Mapping[str, np.ndarray]) -> tuple[np.ndarray, FilterStep]:
-        """The filtered action (the same object when it is already safe) and what was done."""
-        obstacle = self.obstacle_ellipsoid(obs)
-        if obstacle is None:
+        """The filtered action (the same object when it is already safe) and what was done: one barrier
+        constraint per ellipsoid of :meth:`obstacle_ellipsoids`, ``h`` the smallest barrier."""
+        obstacles = self.obstacle_ellipsoids(obs)
+        if not obstacles:
             return action, FilterStep(False, float("inf"), 0.0)
-        h, g, b = self.constraint(action, obs, obstacle)
+        rows = [self.constraint(action, obs, obstacle) for obstacle in obstacles]
+        h = min(r[0] for r in rows)
+        g, b = np.array([r[1] for r in rows]), np.array([r[2] for r in rows])
         nominal = np.asarray(action[:3], np.float64)
-        if g @ nominal >= b:
+        if np.all(g @ nominal >= b):
             return action, FilterStep(False, h, 0.0)
         position, feasible = self.solve(nominal, g, b)
         filtered = np.array(action, copy=True)
         filtered[:3] = position
         return filtered, FilterStep(True, h, float(np.linalg.norm(position - nominal)), feasible)
 
-    def solve(self, nominal: np.ndarray, g: np.ndarray, b: float) -> tuple[np.ndarray, bool]:
-        """``argmin ||x - nominal||^2`` s.t. ``g . x >= b``, ``-1 <= x <= 1``, and whether it was feasible."""
-        if np.abs(g).sum() < b:  # the box holds no x with g . x >= b: increase h as fast as allowed
-            return _escape(nominal, g), False
+    def solve(self, nominal: np.ndarray, g: np.ndarray, b: np.ndarray | float) -> tuple[np.ndarray, bool]:
+        """``argmin ||x - nominal||^2`` s.t. ``G x >= b`` (``g`` ``(3,)`` or ``(M, 3)``, ``b`` scalar or ``(M,)``),
+        ``-1 <= x <= 1``, and whether it was feasible. Infeasible: increase ``h`` as fast as allowed, up the
+        gradient of the row that is violated most."""
+        g, b = np.atleast_2d(np.asarray(g, np.float64)), np.atleast_1d(np.asarray(b, np.float64))
+        reach = np.abs(g).sum(axis=1) - b  # < 0: the box holds no x meeting that row
+        if reach.min() < 0.0:
+            return _escape(nominal, g[int(np.argmin(reach))]), False
         x = self._qp(nominal, g, b)
         if x is None:
-            return _escape(nominal, g), False
-        # OSQP meets constraints to ~1e-9; nudge along g (staying in the box) so g . x >= b holds exactly.
-        for _ in range(3):
-            gap = b - g @ x
-            if gap <= 0.0:
+            return _escape(nominal, g[int(np.argmax(b - g @ nominal))]), False
+        # OSQP meets constraints to ~1e-9; nudge along the worst row (staying in the box) until G x >= b exactly.
+        for _ in range(3 * len(b)):
+            gaps = b - g @ x
+            row = int(np.argmax(gaps))
+            if gaps[row] <= 0.0:
                 break
-            free = (np.abs(x) < 1.0) | (np.sign(g) != np.sign(x))
-            step = np.where(free, g, 0.0)
-            x = np.clip(x + (gap + 1e-12) * step / max(step @ g, 1e-18), -1.0, 1.0)
+            free = (np.abs(x) < 1.0) | (np.sign(g[row]) != np.sign(x))
+            step = np.where(free, g[row], 0.0)
+            x = np.clip(x + (gaps[row] + 1e-12) * step / max(step @ g[row], 1e-18), -1.0, 1.0)
         return x, True
 
 
@@ -224,11 +237,12 @@ def _escape(nominal: np.ndarray, g: np.ndarray) -> np.ndarray:
 
 
 class BarrierQP:
-    """``min ||x - nominal||^2`` s.t. ``g . x >= b``, ``-1 <= x <= 1`` with one persistent OSQP workspace.
+    """``min ||x - nominal||^2`` s.t. ``G x >= b`` (``M`` barrier rows), ``-1 <= x <= 1``, with one persistent
+    OSQP workspace per row count.
 
-    The problem's sparsity never changes (3 variables; rows: the barrier, then the box), so OSQP is set up
-    once and only ``q``, the barrier row and its bound are updated per solve: ~0.3 ms instead of ~3 ms for
-    a fresh setup (what ``qpsolvers.solve_qp`` does on every call).
+    For a given ``M`` the problem's sparsity never changes (3 variables; rows: the barriers, then the box), so
+    OSQP is set up once and only ``q``, the barrier rows and their bounds are updated per solve: ~0.3 ms
+    instead of ~3 ms for a fresh setup (what ``qpsolvers.solve_qp`` does on every call).
     """
 
     def __init__(self, eps: float = 1e-9) -> None:
@@ -236,21 +250,33 @@ class BarrierQP:
             import osqp
         except ImportError as err:  # optional dependency: say how to get it
             raise ImportError("AEGIS solves its QP with OSQP: pip install osqp") from err
-        from scipy import sparse
-
+        self._osqp, self._eps = osqp, eps
         self._v1 = int(osqp.__version__.split(".")[0]) >= 1
-        polish = "polishing" if self._v1 else "polish"  # renamed in OSQP 1.0
-        # A (4 x 3) in CSC with every entry of the barrier row kept structurally, even when g_j = 0.
-        a = sparse.csc_matrix((np.ones(6), np.array([0, 1, 0, 2, 0, 3]), np.array([0, 2, 4, 6])), shape=(4, 3))
-        self._solver = osqp.OSQP()
-        self._solver.setup(P=sparse.eye(3, format="csc"), q=np.zeros(3), A=a, l=np.r_[0.0, -np.ones(3)],
-                           u=np.r_[np.inf, np.ones(3)], eps_abs=eps, eps_rel=eps, max_iter=20_000,
-                           verbose=False, **{polish: True})
+        self._solvers: dict[int, object] = {}
 
-    def __call__(self, nominal: np.ndarray, g: np.ndarray, b: float) -> np.ndarray | None:
-        """The minimiser, or ``None`` when OSQP reports no solution."""
-        self._solver.update(q=-nominal, l=np.r_[b, -np.ones(3)], Ax=np.column_stack([g, np.ones(3)]).ravel())
-        result = self._solver.solve(raise_error=False) if self._v1 else self._solver.solve()
+    def _solver(self, rows: int):
+        if rows not in self._solvers:
+            from scipy import sparse
+
+            polish = "polishing" if self._v1 else "polish"  # renamed in OSQP 1.0
+            # A ((M + 3) x 3) in CSC with every barrier entry kept structurally, even when 0; column j holds
+            # the M barrier rows, then box row M + j.
+            indices = np.concatenate([np.r_[np.arange(rows), rows + j] for j in range(3)])
+            a = sparse.csc_matrix((np.ones(3 * (rows + 1)), indices, (rows + 1) * np.arange(4)),
+                                  shape=(rows + 3, 3))
+            solver = self._osqp.OSQP()
+            solver.setup(P=sparse.eye(3, format="csc"), q=np.zeros(3), A=a, l=np.r_[np.zeros(rows), -np.ones(3)],
+                         u=np.r_[np.full(rows, np.inf), np.ones(3)], eps_abs=self._eps, eps_rel=self._eps,
+                         max_iter=20_000, verbose=False, **{polish: True})
+            self._solvers[rows] = solver
+        return self._solvers[rows]
+
+    def __call__(self, nominal: np.ndarray, g: np.ndarray, b: np.ndarray | float) -> np.ndarray | None:
+        """The minimiser, or ``None`` when OSQP reports no solution (``g`` ``(3,)`` or ``(M, 3)``)."""
+        g, b = np.atleast_2d(np.asarray(g, np.float64)), np.atleast_1d(np.asarray(b, np.float64))
+        solver = self._solver(len(b))
+        solver.update(q=-nominal, l=np.r_[b, -np.ones(3)], Ax=np.column_stack([g.T, np.ones(3)]).ravel())
+        result = solver.solve(raise_error=False) if self._v1 else solver.solve()
         status = str(result.info.status).lower()
         if not status.startswith("solved") or result.x is None or not np.all(np.isfinite(result.x)):
             return None
@@ -266,6 +292,7 @@ class AegisPolicy:
         alpha: barrier gain (1/s); dt: control period (s).
         ee_semi_axes: end-effector semi-axes (m) along the grip-site x, y, z axes.
         ee_offset: end-effector centre, m from the grip site towards the wrist.
+        support: also keep clear of what the obstacle stands on (its own ellipsoid and barrier).
         **base_options: options of the wrapped policy (``checkpoint``, ``action_steps``, ``seed``, ...).
 
     AEGIS's own options, their types and ranges are :class:`~detaug_gym.policies.options.AegisOptions`.
@@ -279,10 +306,11 @@ class AegisPolicy:
 
     def __init__(self, suite: str = "spatial", base: str = "base", alpha: float = 10.0, dt: float = CONTROL_DT,
                  ee_semi_axes: tuple[float, float, float] = EE_SEMI_AXES, ee_offset: float = EE_OFFSET,
-                 **base_options) -> None:
+                 support: bool = True, **base_options) -> None:
         opts = AegisOptions(suite=suite, base=base, alpha=alpha, dt=dt, ee_semi_axes=ee_semi_axes,
-                            ee_offset=ee_offset)
-        self.filter = CBFFilter(opts.alpha, opts.dt, EndEffectorEllipsoid(opts.ee_semi_axes, opts.ee_offset))
+                            ee_offset=ee_offset, support=support)
+        self.filter = CBFFilter(opts.alpha, opts.dt, EndEffectorEllipsoid(opts.ee_semi_axes, opts.ee_offset),
+                                opts.support)
         self.policy = make_policy(opts.base, suite=opts.suite, **base_options)
         self.diagnostics: list[FilterStep] = []
 

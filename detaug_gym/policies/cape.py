@@ -74,6 +74,8 @@ class CapePolicy(FlowPolicy):
         guide: ``"both"``, ``"states"`` or ``"actions"``: which part of the plan the cost sees (module doc).
         action_gain: achieved fraction of the commanded displacement per step (``actions`` term).
         track_cost: record the cost of every executed plan in ``diagnostics`` (one more FK pass per replan).
+        support: also guide away from what the obstacle stands on (a pedestal or base; off by default, as
+            measured best for CAPE: :class:`~detaug_gym.policies.options.CapeOptions`).
         **options: :class:`~detaug_gym.models.policy.FlowPolicy` options (``flow_steps``, ``seed``, ...).
 
     Every option, its type and its range are :class:`~detaug_gym.policies.options.CapeOptions`.
@@ -85,13 +87,13 @@ class CapePolicy(FlowPolicy):
                  t_start: float = 0.5, refine_steps: int | None = None, guidance_scale: float = 3.0,
                  guidance_t_min: float = 0.8, sphere_radius: float = EEF_SPHERE_RADIUS,
                  margin: float = DEFAULT_MARGIN["spheres"], guide: str = "both", action_gain: float = 0.25,
-                 track_cost: bool = False, **options) -> None:
+                 track_cost: bool = False, support: bool = False, **options) -> None:
         if "action_steps" in options:
             raise ValueError("CAPE executes prefix_steps actions per plan; pass prefix_steps, not action_steps")
         opts = CapeOptions.from_kwargs(
             suite=suite, checkpoint=checkpoint, prefix_steps=prefix_steps, t_start=t_start, refine_steps=refine_steps,
             guidance_scale=guidance_scale, guidance_t_min=guidance_t_min, sphere_radius=sphere_radius, margin=margin,
-            guide=guide, action_gain=action_gain, track_cost=track_cost, **options)
+            guide=guide, action_gain=action_gain, track_cost=track_cost, support=support, **options)
         ckpt = load_checkpoint(opts.checkpoint or zoo_dir("base", opts.suite))
         if not opts.prefix_steps < ckpt.network.config.dit.horizon:
             raise ValueError(f"prefix_steps must lie in [1, horizon), got {opts.prefix_steps}")
@@ -102,7 +104,7 @@ class CapePolicy(FlowPolicy):
         panda = RobotGeometry.panda()
         spheres = RobotSpheres.end_effector(panda.kinematics, radius=opts.sphere_radius)
         self.robot = RobotGeometry(panda.kinematics, panda.points, spheres)
-        self.track_cost = opts.track_cost
+        self.track_cost, self.support = opts.track_cost, opts.support
         self.diagnostics: list[CapeStep] = []
         self._previous: torch.Tensor | None = None
 
@@ -155,7 +157,7 @@ class CapePolicy(FlowPolicy):
         if not has_obstacle(obs):
             return None
         observation = dict(obs)
-        sdf, robot = obstacle_sdf(observation), self.robot.aligned_to(observation)
+        sdf, robot = obstacle_sdf(observation, support=self.support), self.robot.aligned_to(observation)
         fingers = torch.as_tensor(np.asarray(obs["gripper_qpos"], np.float64))
 
         def cost(plans: torch.Tensor, t: float) -> torch.Tensor:

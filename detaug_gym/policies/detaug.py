@@ -62,6 +62,8 @@ class DetAugPolicy(FlowPolicy):
         tiebreak_margin: metres beyond ``inflate``; among plans of equal (lowest) cost the one penetrating least
             into the obstacle inflated by this much more wins, before the least bent (0: the least bent, as
             the paper's selection).
+        support: also score penetration into what the obstacle stands on (a pedestal or base), whose
+            displacement moves the obstacle.
         action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
 
     Every option, its type and its range are :class:`~detaug_gym.policies.options.DetAugOptions`.
@@ -72,11 +74,11 @@ class DetAugPolicy(FlowPolicy):
     def __init__(self, suite: str = "spatial", checkpoint: str | None = None, k: int = 32, latch: bool = False,
                  labels: str = "random", cost: str = "penetration", mode: str = "select",
                  guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,
-                 inflate: float = 0.015, tiebreak_margin: float = 0.0, **options) -> None:
+                 inflate: float = 0.015, tiebreak_margin: float = 0.0, support: bool = True, **options) -> None:
         opts = DetAugOptions.from_kwargs(suite=suite, checkpoint=checkpoint, k=k, latch=latch, labels=labels,
                                          cost=cost, mode=mode, guidance_scale=guidance_scale,
                                          guidance_t_min=guidance_t_min, held_object=held_object, inflate=inflate,
-                                         tiebreak_margin=tiebreak_margin, **options)
+                                         tiebreak_margin=tiebreak_margin, support=support, **options)
         ckpt = load_checkpoint(opts.checkpoint or zoo_dir("detaug", opts.suite))
         if not ckpt.network.config.dit.label_dim:
             raise ValueError(f"{ckpt.path} was trained without labels ({ckpt.method!r}); DetAug needs a "
@@ -88,6 +90,7 @@ class DetAugPolicy(FlowPolicy):
                                                                             opts.cost, opts.mode)
         self.guidance_scale, self.guidance_t_min = opts.guidance_scale, opts.guidance_t_min
         self.held_object, self.inflate, self.tiebreak_margin = opts.held_object, opts.inflate, opts.tiebreak_margin
+        self.support = opts.support
         self.diagnostics: list[ReplanDiagnostics] = []
         self._latched: np.ndarray | None = None
         self._rng = np.random.default_rng()
@@ -134,7 +137,7 @@ class DetAugPolicy(FlowPolicy):
         with torch.no_grad():
             cost = float(self._plan_cost(row, observation)[0])
             clearance = float(robot_clearance(state[0, self.layout.key_slice("robot_joint_pos")], observation,
-                                              obstacle_sdf(observation)))
+                                              obstacle_sdf(observation, support=self.support)))
         return {"executed_cost": cost, "executed_clearance": clearance}
 
     # ------------------------------------------------------------------ selection
@@ -189,7 +192,7 @@ class DetAugPolicy(FlowPolicy):
         """(...) cost of plans (..., H, D): the robot's points, plus the held object's points if enabled."""
         from detaug_gym.geometry import held_object_cost, obstacle_sdf, plan_collision_cost
 
-        sdf = obstacle_sdf(obs)
+        sdf = obstacle_sdf(obs, support=self.support)
         margin = (self.inflate if inflate is None else inflate) if self.cost_kind == "penetration" else None
         cost = plan_collision_cost(plans[..., self.layout.key_slice("robot_joint_pos")], obs, kind=self.cost_kind,
                                    sdf=sdf, margin=margin)
