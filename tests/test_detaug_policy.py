@@ -145,3 +145,27 @@ def test_tiebreak_margin_prefers_the_plan_furthest_into_the_clear(checkpoint):
         else:
             assert np.linalg.norm(labels[index]) == pytest.approx(np.linalg.norm(labels[tied], axis=1).min())
     assert len(tied) > 1 and len(set(np.round(wide[tied], 6))) > 1  # a real tie, broken two ways
+
+
+def test_support_labels_are_uniform_within_each_transits_training_range(checkpoint):
+    """``labels="support"``: the unbent label first, then per transit ``phi`` and ``theta`` inside the range the
+    task's bent training labels span (and spread over it, not copies of training rows)."""
+    path, obs = checkpoint
+    policy = DetAugPolicy(checkpoint=path, k=400, labels="support", seed=0)
+    policy.reset(seed=0)
+    labels = policy.sample_labels(obs, 400)
+    assert labels.shape == (400, policy.label_dim) and np.all(labels[0] == 0.0)
+    bank = policy.labels.bank[policy.labels.task == int(np.argmax(obs["task_id"]))]
+    for j in range(0, policy.label_dim, 2):
+        phi, theta = np.hypot(bank[:, j], bank[:, j + 1]), np.arctan2(bank[:, j + 1], bank[:, j])
+        got_phi, got_theta = np.hypot(labels[1:, j], labels[1:, j + 1]), np.arctan2(labels[1:, j + 1], labels[1:, j])
+        if not (phi > 0).any():
+            assert np.all(got_phi == 0.0)
+            continue
+        lo, hi = phi[phi > 0].min(), phi[phi > 0].max()
+        assert got_phi.min() >= lo - 1e-5 and got_phi.max() <= hi + 1e-5
+        assert theta[phi > 0].min() - 1e-5 <= got_theta.min() and got_theta.max() <= theta[phi > 0].max() + 1e-5
+        if hi - lo > 1e-3:  # a continuous spread, not the bank's few rows
+            assert len(np.unique(got_phi.round(6))) > 300
+    policy.next_plan(obs)  # and they plan
+    assert policy.diagnostics[-1].k == 400

@@ -24,7 +24,7 @@ from detaug_gym.config import check_value, config_fields
 
 LABEL_MODES = ("auto", "zero", "null")  # FlowPolicy: which label act() plans with
 MODES = ("select", "null_guidance", "guided_select", "null_select")  # DetAug: selection vs guidance ablation
-LABEL_SOURCES = ("random", "zero")  # DetAug: where the K candidate labels come from
+LABEL_SOURCES = ("random", "support", "zero")  # DetAug: where the K candidate labels come from
 COSTS = ("penetration", "clearance")  # DetAug: how a candidate plan is scored
 GUIDE_TARGETS = ("both", "states", "actions")  # CAPE: which part of the plan the guidance cost sees
 
@@ -159,7 +159,8 @@ class DetAugOptions(FlowOptions):
     latch: bool = False
     """Keep the first selected label for the whole episode (the paper found this halves clean success)."""
     labels: str = field(default="random", metadata={"choices": LABEL_SOURCES})
-    """Candidate labels: random (rows of the task's training labels: DetAug) or zero (the unbent label)."""
+    """Candidate labels: random (rows of the task's training labels: DetAug), support (uniform within the task's
+    training support, per transit, and the unbent label once) or zero (the unbent label)."""
     cost: str = field(default="penetration", metadata={"choices": COSTS})
     """Score of a candidate: penetration (paper) or clearance."""
     mode: str = field(default="select", metadata={"choices": MODES})
