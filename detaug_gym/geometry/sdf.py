@@ -216,8 +216,7 @@ class UnionSDF:
 
     def __call__(self, points: torch.Tensor) -> torch.Tensor:
         """Signed distance of world points ``(..., 3)`` -> ``(...,)``: the smallest over the parts."""
-        values = [p(points) for p in self.parts]
-        return torch.stack(values).amin(dim=0) if len(values) > 1 else values[0]
+        return torch.stack([p(points) for p in self.parts]).amin(dim=0)
 
     def exact(self, points: np.ndarray) -> np.ndarray:
         """Exact signed distance of world points ``(N, 3)``, ``(N,)``."""
