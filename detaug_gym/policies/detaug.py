@@ -52,8 +52,9 @@ class DetAugPolicy(FlowPolicy):
         checkpoint: a checkpoint folder.
         k: candidates per replan (paper: 32).
         latch: keep the first selected label for the whole episode (the paper found this halves clean success).
-        labels: ``"random"`` (rows of the task's training labels), ``"support"`` (uniform within the task's
-            training support, see :meth:`sample_labels`) or ``"zero"`` (the unbent label for all K candidates).
+        labels: ``"support"`` (the paper's draw: uniform within the task's training support, see
+            :meth:`sample_labels`), ``"random"`` (rows of the task's training labels) or ``"zero"`` (the unbent
+            label for all K candidates).
         cost: ``"penetration"`` (paper) or ``"clearance"``.
         mode: one of :data:`~detaug_gym.policies.options.MODES` (selection vs guidance ablation).
         guidance_scale, guidance_t_min: lambda and chi of the guidance variants.
@@ -73,7 +74,7 @@ class DetAugPolicy(FlowPolicy):
     zoo_method = "detaug"
 
     def __init__(self, suite: str = "spatial", checkpoint: str | None = None, k: int = 32, latch: bool = False,
-                 labels: str = "random", cost: str = "penetration", mode: str = "select",
+                 labels: str = "support", cost: str = "penetration", mode: str = "select",
                  guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,
                  inflate: float = 0.015, tiebreak_margin: float = 0.0, support: bool = True, **options) -> None:
         opts = DetAugOptions.from_kwargs(suite=suite, checkpoint=checkpoint, k=k, latch=latch, labels=labels,
@@ -84,7 +85,7 @@ class DetAugPolicy(FlowPolicy):
         if not ckpt.network.config.dit.label_dim:
             raise ValueError(f"{ckpt.path} was trained without labels ({ckpt.method!r}); DetAug needs a "
                              "checkpoint from `python -m detaug_gym.train --method detaug`")
-        if opts.labels == "random" and len(ckpt.labels.bank) == 0:
+        if opts.labels != "zero" and len(ckpt.labels.bank) == 0:
             raise ValueError(f"{ckpt.path} stores no training labels to sample from")
         super().__init__(ckpt, **opts.flow_policy_kwargs())
         self.k, self.latch, self.label_source, self.cost_kind, self.mode = (opts.k, opts.latch, opts.labels,
@@ -143,13 +144,13 @@ class DetAugPolicy(FlowPolicy):
 
     # ------------------------------------------------------------------ selection
     def sample_labels(self, obs: Mapping[str, np.ndarray], k: int) -> np.ndarray:
-        """(k, L) labels: rows of the current task's training labels (uniform, without replacement when
-        there are enough); with ``labels="support"`` the unbent label, then k - 1 labels drawn uniformly within
-        the task's training support, each transit (a pair of label entries, ``phi (cos theta, sin theta)``) on
-        its own: ``phi`` and ``theta`` uniform between the smallest and largest of that transit's bent training
-        labels (a transit never bent in training stays unbent); zeros with ``labels="zero"``. The bank holds one
-        zero row per unaugmented demo, so ``"random"`` draws the unbent label far more often than any detour
-        (37-68 % of the K on Spatial)."""
+        """(k, L) labels for the current task. ``labels="support"`` (default): the unbent label, then k - 1
+        labels drawn uniformly within the task's training support, each transit (a pair of label entries,
+        ``phi (cos theta, sin theta)``) on its own: ``phi`` and ``theta`` uniform between the smallest and
+        largest of that transit's bent training labels (a transit never bent in training stays unbent).
+        ``"random"``: rows of the task's training labels (uniform, without replacement when there are enough);
+        the bank holds one zero row per unaugmented demo, so this draws the unbent label far more often than
+        any detour (37-68 % of the K on Spatial). ``"zero"``: zeros."""
         if self.label_source == "zero":
             return np.zeros((k, self.label_dim), np.float32)
         bank, tasks = self.labels.bank, self.labels.task
