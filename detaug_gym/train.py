@@ -100,6 +100,9 @@ class TrainConfig:
     """Observation prefix tokens."""
     n_points: int = 256
     """demogen: points per obstacle cloud."""
+    label_tokens: bool = False
+    """detaug: also add the label to the observation tokens (:attr:`DiTConfig.label_tokens`; off: the paper's
+    AdaLN-only injection)."""
     init_from: str = ""
     """Checkpoint folder whose weights (and normalisers) initialise the network: fine-tuning."""
     adapter_only: bool = False
@@ -149,6 +152,8 @@ def check_config(cfg: TrainConfig) -> None:
     if cfg.zero_label_weight <= 0.0 or (cfg.zero_label_weight != 1.0 and cfg.method != "detaug"):
         raise SystemExit(f"error: --zero-label-weight must be > 0 and applies to --method detaug only, got "
                          f"{cfg.zero_label_weight} with --method {cfg.method}")
+    if cfg.label_tokens and cfg.method != "detaug":
+        raise SystemExit(f"error: --label-tokens applies to --method detaug only, got --method {cfg.method}")
     if cfg.snapshot_every < 0:
         raise SystemExit(f"error: --snapshot-every must be >= 0 (0: no snapshots), got {cfg.snapshot_every}")
     if not 1 <= cfg.action_steps <= cfg.horizon:
@@ -195,7 +200,8 @@ def build_network(cfg: TrainConfig, data: WindowDataset, init=None) -> FlowNetwo
         steps_per_token=arch.steps_per_token if arch else cfg.steps_per_token,
         d_model=arch.d_model if arch else cfg.d_model, n_layers=arch.n_layers if arch else cfg.layers,
         n_heads=arch.n_heads if arch else cfg.heads, obs_tokens=arch.obs_tokens if arch else cfg.obs_tokens,
-        label_dim=data.label_dim, extra_dim=64 if cfg.method == "demogen" else 0)
+        label_dim=data.label_dim, extra_dim=64 if cfg.method == "demogen" else 0,
+        label_tokens=cfg.label_tokens and data.label_dim > 0)
     network = FlowNetwork(NetworkConfig(dit, point_cloud=cfg.method == "demogen"))
     if init is not None:
         missing, unexpected = network.load_state_dict(init.network.state_dict(), strict=False)

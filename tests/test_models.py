@@ -53,6 +53,26 @@ def test_dit_shapes_label_paths_and_zero_output_at_init():
     assert torch.allclose(mixed[0], null[0]) and torch.allclose(mixed[1], model(x, t, obs, label)[1])
 
 
+def test_label_tokens_start_as_the_adaln_only_network_and_reach_the_obs_tokens():
+    """``label_tokens``: grafted onto a trained AdaLN-only DiT it changes nothing at step 0; trained, the label
+    changes the output through the observation tokens too, and a dropped label (null) adds nothing there."""
+    torch.manual_seed(0)
+    plain = DiT(tiny_config())
+    randomize(plain)
+    tokens = DiT(tiny_config(label_tokens=True))
+    missing, unexpected = tokens.load_state_dict(plain.state_dict(), strict=False)
+    assert not unexpected and all(k.startswith("label_obs") for k in missing)
+    x, t, obs, label = torch.randn(4, 8, 5), torch.rand(4), torch.randn(4, 6), torch.randn(4, 3)
+    assert torch.equal(tokens(x, t, obs, label), plain(x, t, obs, label))
+    randomize(tokens.label_obs, seed=1)
+    assert not torch.allclose(tokens(x, t, obs, label), plain(x, t, obs, label))
+    dropped = torch.ones(4, dtype=torch.bool)
+    assert torch.allclose(tokens(x, t, obs, label, drop_label=dropped), plain(x, t, obs, None))
+    assert "label_obs" in {name.split(".")[0] for name in tokens.adapter_modules()}
+    with pytest.raises(ValueError, match="label_tokens needs label_dim"):
+        DiT(tiny_config(label_dim=0, label_tokens=True))
+
+
 def test_dit_rejects_bad_layout_and_unexpected_inputs():
     with pytest.raises(ValueError, match="divide horizon"):
         tiny_config(horizon=9)

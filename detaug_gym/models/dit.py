@@ -57,6 +57,10 @@ class DiTConfig:
     """L: augmentation label size (0: no label encoder, e.g. the ``base`` policy)."""
     extra_dim: int = 0
     """E: size of an extra conditioning vector added to ``c`` through a zero-initialised projection."""
+    label_tokens: bool = False
+    """Also add the label to the observation prefix tokens (a zero-initialised path beside AdaLN), so attention
+    can combine it with the object poses: a sideways arc's direction depends on the chord the obs gives, which
+    one global modulation hardly expresses (``benchmarks/label_fidelity.py``). False is the paper's network."""
 
     def __post_init__(self) -> None:
         if self.horizon % self.steps_per_token:
@@ -166,6 +170,11 @@ class DiT(nn.Module):
         if config.label_dim > 0:  # phi_z and the null token
             self.label_mlp = nn.Sequential(nn.Linear(config.label_dim, d), nn.SiLU(), _zero(nn.Linear(d, d)))
             self.null_label = nn.Parameter(torch.zeros(d))
+            if config.label_tokens:
+                self.label_obs = nn.Sequential(nn.Linear(config.label_dim, d), nn.SiLU(),
+                                               _zero(nn.Linear(d, config.obs_tokens * d)))
+        elif config.label_tokens:
+            raise ValueError("label_tokens needs label_dim > 0")
         if config.extra_dim > 0:
             self.extra_proj = _zero(nn.Linear(config.extra_dim, d))
         self.blocks = nn.ModuleList(
@@ -218,6 +227,10 @@ class DiT(nn.Module):
         c = self.condition(t, label, extra, drop_label)
         plan = self.plan_in(x.reshape(b, cfg.plan_tokens, cfg.steps_per_token * dim))
         obs = self.obs_in(obs_cond).view(b, cfg.obs_tokens, cfg.d_model)
+        if cfg.label_tokens and label is not None:  # the null token adds nothing here
+            add = self.label_obs(label.to(obs.dtype))
+            add = add if drop_label is None else add * (~drop_label)[:, None].to(add.dtype)
+            obs = obs + add.view(b, cfg.obs_tokens, cfg.d_model)
         tokens = torch.cat([obs, plan], dim=1) + self.pos_emb
         for block in self.blocks:
             tokens = block(tokens, c)
@@ -230,6 +243,8 @@ class DiT(nn.Module):
         parts: dict[str, nn.Module | nn.Parameter] = {}
         if self.config.label_dim > 0:
             parts["label_mlp"], parts["null_label"] = self.label_mlp, self.null_label
+            if self.config.label_tokens:
+                parts["label_obs"] = self.label_obs
         if self.config.extra_dim > 0:
             parts["extra_proj"] = self.extra_proj
         for i, block in enumerate(self.blocks):
