@@ -201,7 +201,7 @@ def build_network(cfg: TrainConfig, data: WindowDataset, init=None) -> FlowNetwo
         d_model=arch.d_model if arch else cfg.d_model, n_layers=arch.n_layers if arch else cfg.layers,
         n_heads=arch.n_heads if arch else cfg.heads, obs_tokens=arch.obs_tokens if arch else cfg.obs_tokens,
         label_dim=data.label_dim, extra_dim=64 if cfg.method == "demogen" else 0,
-        label_tokens=cfg.label_tokens and data.label_dim > 0)
+        label_tokens=(cfg.label_tokens or bool(arch and arch.label_tokens)) and data.label_dim > 0)
     network = FlowNetwork(NetworkConfig(dit, point_cloud=cfg.method == "demogen"))
     if init is not None:
         missing, unexpected = network.load_state_dict(init.network.state_dict(), strict=False)
