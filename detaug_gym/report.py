@@ -29,10 +29,16 @@ CAPTION = ("Clean = success without collision, Total = success irrespective of c
            "mean ± std over the seeds.")
 
 
-# The DetAug paper's Table I (official SafeLIBERO; Clean / Total / Avoid, percent), for the suites it reports here.
+# The DetAug paper's Table I (official SafeLIBERO, feasible cells, levels averaged; Clean / Total / Avoid, percent).
 PAPER_TABLE_I = {
     "spatial": {"detaug": (58.7, 73.0, 68.0), "cape": (42.0, 46.7, 71.2), "aegis": (28.1, 43.0, 57.1),
                 "demogen": (19.4, 51.7, 24.5)},
+    "object": {"detaug": (88.5, 92.5, 94.0), "cape": (52.2, 57.1, 87.2), "aegis": (47.2, 60.6, 67.2),
+               "demogen": (32.4, 80.7, 33.5)},
+    "goal": {"detaug": (32.5, 58.0, 43.5), "cape": (25.8, 37.2, 61.2), "aegis": (17.2, 24.2, 59.3),
+             "demogen": (22.5, 56.8, 24.8)},
+    "long": {"detaug": (29.1, 46.9, 56.0), "cape": (2.2, 3.0, 79.0), "aegis": (13.8, 15.6, 73.0),
+             "demogen": (7.0, 30.2, 22.4)},
 }
 
 

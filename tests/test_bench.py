@@ -126,3 +126,23 @@ def test_free_level_table_shows_no_avoid_and_warns_nothing():
     cells = dict(zip(header, rows[0]))
     assert cells["Spatial Avoid"] == "50.0"  # only the L2 cell defines it
     assert cells["Spatial Total"] == "75.0"  # mean of the levels' 50 and 100
+
+
+def test_paper_rows_cover_every_suite_of_table_one():
+    """Our rates sit beside the paper's Table I for each of its four suites; a method or suite the paper does
+    not report gets no row."""
+    from detaug_gym.report import paper_rows, summarise
+
+    def record(method, suite, level, success, collision):
+        return {"method": method, "suite": suite, "level": level, "success": success, "collision": collision,
+                "termination": "success" if success else "timeout"}
+
+    records = [record("detaug", suite, level, True, False) for suite in ("spatial", "object", "goal", "long")
+               for level in ("L1", "L2")] + [record("base", "object", "L1", True, False),
+                                             record("cape:k=3", "long", "L2", False, True)]
+    header, rows = paper_rows(summarise(records))
+    by_key = {(r[0], r[1]): dict(zip(header, r)) for r in rows}
+    assert set(by_key) == {("detaug", s) for s in ("spatial", "object", "goal", "long")} | {("cape:k=3", "long")}
+    assert by_key[("detaug", "object")]["Clean (paper)"] == "88.5"
+    assert by_key[("detaug", "goal")]["Clean (ours)"] == "100.0"
+    assert by_key[("cape:k=3", "long")]["Avoid (paper)"] == "79.0"
