@@ -46,6 +46,25 @@ def test_all_thirty_ids_registered_and_namespaced():
     assert env.spec.max_episode_steps == 300
 
 
+def test_task_id_uses_the_suites_order_at_every_level():
+    """Goal offers four tasks per obstacle level and five on Free: the one-hot keeps the suite's five slots, so
+    L2's task 3 (the cream cheese) reads as the suite's task 4, as in the Free demos a policy was trained on."""
+    from detaug_gym.envs.suites import SUITES
+
+    goal = SUITES["goal"]
+    assert [goal.suite_task("L2", t) for t in range(4)] == [0, 1, 2, 4]
+    assert [goal.suite_task("L1", t) for t in range(4)] == [0, 1, 2, 3]
+    assert goal.suite_task("Free", 4) == 4
+    env = gym.make("SafeLibero-Goal-L2-v2", task=3)
+    try:
+        assert env.observation_space["task_id"].shape == (5,)
+        obs, _ = env.reset(seed=0)
+        assert obs["task_id"].shape == (5,) and int(np.argmax(obs["task_id"])) == 4
+        assert goal.tasks[4].key == env.unwrapped.task_spec.key == "cream_cheese_in_bowl"
+    finally:
+        env.close()
+
+
 @pytest.mark.parametrize("env_id", ALL_IDS)
 def test_env_checker_passes(env_id):
     """gymnasium's check_env on every id, each with one fixed task so that one scene is compiled."""

@@ -67,8 +67,9 @@ class ObstacleManipulationEnv(gym.Env):
         ``robot_joint_pos`` (7,), ``robot_joint_vel`` (7,), ``gripper_qpos`` (2,), ``eef_pos`` (3,),
         ``eef_quat`` (4,) xyzw, ``object_poses`` (S, 7) pos + xyzw quat of the task-relevant objects,
         ``object_mask`` (S,), ``object_points`` (S, 64, 3) world-frame surface samples of those objects (zeros
-        for a slot without a body), ``task_id`` (T,) one-hot, ``obstacle_points`` (256, 3) world-frame surface
-        samples, ``obstacle_local_points`` (256, 3) the same samples in the obstacle's own frame (the same
+        for a slot without a body), ``task_id`` (T,) one-hot over the suite's T tasks in the suite's order (a
+        task has the same index at every level, so a policy trained on Free reads it right at L1 / L2),
+        ``obstacle_points`` (256, 3) world-frame surface samples, ``obstacle_local_points`` (256, 3) the same samples in the obstacle's own frame (the same
         numbers every episode for a shape: what shape-derived caches are built from), ``obstacle_pose`` (7,),
         ``obstacle_size`` (3,) half-extents, ``obstacle_mask`` (1,); and what the obstacle stands on (a pedestal
         or base: touching it moves the obstacle, so it counts with the obstacle for collision, contact and
@@ -130,7 +131,7 @@ class ObstacleManipulationEnv(gym.Env):
             "object_poses": _box((object_slots, 7)),
             "object_mask": _box(object_slots, 0.0, 1.0),
             "object_points": _box((object_slots, OBJECT_POINTS, 3)),
-            "task_id": _box(num_tasks, 0.0, 1.0),
+            "task_id": _box(len(suite.tasks), 0.0, 1.0),
             "obstacle_points": _box((OBSTACLE_POINTS, 3)),
             "obstacle_local_points": _box((OBSTACLE_POINTS, 3)),
             "obstacle_pose": _box(7),
@@ -402,8 +403,8 @@ class ObstacleManipulationEnv(gym.Env):
         d = scene.data
         eef_pos, eef_quat = scene.eef_pose()
         poses, mask = scene.tracked_poses(self.object_slots)
-        task_id = np.zeros(self.num_tasks)
-        task_id[self.episode.task] = 1.0
+        task_id = np.zeros(len(self.suite.tasks))
+        task_id[self.suite.suite_task(self.level, self.episode.task)] = 1.0
         obs = {
             "robot_joint_pos": d.qpos[scene.arm_qpos],
             "robot_joint_vel": d.qvel[scene.arm_qvel],

@@ -137,6 +137,14 @@ class SuiteSpec:
             return self.tasks
         return tuple(self.tasks[i] for i in self.level_tasks[level])
 
+    def suite_task(self, level: str, task: int) -> int:
+        """Index into :attr:`tasks` (the suite's own order, which the observation's ``task_id`` one-hot uses at
+        every level) of task ``task`` of ``level``'s list: Goal's Level 2 task 3 is the suite's task 4."""
+        level = self.check_level(level)
+        if level == "Free" or level not in self.level_tasks:
+            return int(task)
+        return int(self.level_tasks[level][task])
+
     def resolve_task(self, level: str, task) -> int:
         """Index (into ``tasks_for(level)``) of ``task`` given as an index, key, instruction or SafeLIBERO name.
 
