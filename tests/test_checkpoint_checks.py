@@ -70,3 +70,17 @@ def test_training_on_nan_actions_names_the_file_and_demo(tmp_path):
         actions[...] = values
     with pytest.raises(SystemExit, match=r"demos.hdf5: data/demo_1 has non-finite values in actions"):
         train(TrainConfig(method="base", data=str(data), out=str(tmp_path / "out"), steps=2, progress=False))
+
+
+def test_an_observation_of_another_size_is_a_clear_error(tiny_base_checkpoint):
+    """An env whose observation is not the training env's (here one more task slot) is named key by key, not
+    left to a numpy broadcast error deep in the normaliser."""
+    path, obs = tiny_base_checkpoint
+    policy = FlowPolicy(path)
+    policy.reset(seed=0)
+    policy.act(obs)
+    wider = dict(obs, task_id=np.append(obs["task_id"], 0.0).astype(np.float32))
+    n = len(obs["task_id"])
+    policy.reset(seed=0)
+    with pytest.raises(ValueError, match=rf"task_id {n + 1}.*trained on"):
+        policy.act(wider)

@@ -69,8 +69,9 @@ class ObstacleManipulationEnv(gym.Env):
         ``object_mask`` (S,), ``object_points`` (S, 64, 3) world-frame surface samples of those objects (zeros
         for a slot without a body), ``task_id`` (T,) one-hot over the suite's T tasks in the suite's order (a
         task has the same index at every level, so a policy trained on Free reads it right at L1 / L2),
-        ``obstacle_points`` (256, 3) world-frame surface samples, ``obstacle_local_points`` (256, 3) the same samples in the obstacle's own frame (the same
-        numbers every episode for a shape: what shape-derived caches are built from), ``obstacle_pose`` (7,),
+        ``obstacle_points`` (256, 3) world-frame surface samples, ``obstacle_local_points`` (256, 3) the same
+        samples in the obstacle's own frame (the same numbers every episode for a shape: what shape-derived
+        caches are built from), ``obstacle_pose`` (7,),
         ``obstacle_size`` (3,) half-extents, ``obstacle_mask`` (1,); and what the obstacle stands on (a pedestal
         or base: touching it moves the obstacle, so it counts with the obstacle for collision, contact and
         clearance): ``obstacle_support_points`` (128, 3) world-frame surface samples, ``obstacle_support_local_points``

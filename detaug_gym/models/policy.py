@@ -177,7 +177,7 @@ class FlowPolicy:
         net, norm, dev = self.network, self.checkpoint.normalizers, self.device
         batch = _batched(obs)
         k = _count(batch, labels, num_samples)
-        obs_cond = torch.from_numpy(norm["obs"].normalize(observation_vector(batch, self.checkpoint.obs_keys)))
+        obs_cond = torch.from_numpy(norm["obs"].normalize(self._observation_features(batch)))
         state = torch.from_numpy(self.layout.state_vector(batch))
         obs_cond, state = obs_cond.to(dev).expand(k, -1), state.expand(k, -1)
         label = self._label_tensor(labels, k)
@@ -217,6 +217,19 @@ class FlowPolicy:
         if len(label) != k:
             raise ValueError(f"got {len(label)} labels for {k} samples")
         return label
+
+    def _observation_features(self, batch: Mapping[str, np.ndarray]) -> np.ndarray:
+        """(N, C) conditioning features of a batched observation; ``ValueError`` when C is not the checkpoint's
+        (an observation from another env than the one it was trained on), naming each key's size."""
+        keys = self.checkpoint.obs_keys
+        features = observation_vector(batch, keys)
+        trained = self.checkpoint.normalizers["obs"].dim
+        if features.shape[-1] != trained:
+            sizes = ", ".join(f"{k} {observation_vector(batch, (k,)).shape[-1]}" for k in keys)
+            raise ValueError(f"the observation gives {features.shape[-1]} conditioning features ({sizes}) but "
+                             f"{self.checkpoint.path} was trained on {trained}: its env's observation differs "
+                             "from the training env's")
+        return features
 
     def _points(self, batch: dict, k: int) -> tuple[torch.Tensor | None, torch.Tensor | None]:
         if self.network.point_encoder is None:
