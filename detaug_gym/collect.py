@@ -61,6 +61,9 @@ class CollectArgs:
     """Episodes tried per task before giving up (default ``2 * demos``)."""
     controller: str | None = None
     """Env controller (``fast`` / ``stock``); default: the env's default."""
+    layout: str | None = None
+    """SafeLIBERO Free envs' object layout: ``libero`` (default), ``safelibero`` (the obstacle levels' scene edits,
+    no obstacle) or ``mixed`` (half each); see :class:`~detaug_gym.envs.safe_libero.SafeLiberoEnv`."""
     action_noise: float = 0.0
     """Std of a correlated disturbance on the executed position action, 1 = 5 cm (DART-style recovery demos;
     0: clean)."""
@@ -80,6 +83,14 @@ class CollectArgs:
             raise ValueError(f"--tail-steps must be >= 0, got {self.tail_steps}")
         if self.max_attempts is not None and self.max_attempts < 1:
             raise ValueError(f"--max-attempts must be >= 1, got {self.max_attempts}")
+        if self.layout is not None:
+            from detaug_gym.envs.safe_libero import LAYOUTS
+            from detaug_gym.envs.suites import suite_of_env
+
+            suite, level = suite_of_env(self.env)
+            if self.layout not in LAYOUTS or level != "Free" or not suite.entry_point.endswith(":SafeLiberoEnv"):
+                raise ValueError(f"--layout takes {', '.join(LAYOUTS)} on a SafeLIBERO Free env "
+                                 f"(SafeLibero-<Suite>-Free-v0); got {self.layout!r} with {self.env}")
         try:  # ActionNoise is the one place that validates the noise options
             ActionNoise(self.action_noise, self.noise_tau, self.noise_duty, self.noise_burst)
         except ValueError as exc:
@@ -221,6 +232,8 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
         "seed": int(seed),
         "controller": json.dumps(controller_settings(base.controller)),
     }
+    if getattr(base, "layout", "libero") != "libero":
+        attrs["layout"] = base.episode_layout
     if tail_steps:
         attrs["tail_steps"] = int(tail_steps)
     if noise is not None:
@@ -246,7 +259,8 @@ def collect(args: CollectArgs) -> list[TaskStats]:
     """Run the collection described by ``args``; returns per-task statistics."""
     from tqdm import tqdm
 
-    env_kwargs = {} if args.controller is None else {"controller": args.controller}
+    env_kwargs = {key: value for key, value in (("controller", args.controller), ("layout", args.layout))
+                  if value is not None}
     env = gym.make(args.env, **env_kwargs)
     base = env.unwrapped
     tasks = parse_tasks(args.task, len(base.tasks))

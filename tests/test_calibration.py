@@ -201,6 +201,39 @@ def test_v2_moves_objects_and_fixtures_and_takes_distractors_off_as_safelibero_d
     v2.close()
 
 
+def test_free_layouts_give_safelibero_edits_without_an_obstacle_and_replay_from_the_seed():
+    """Goal task 2 (bowl on the stove) is offered at both levels with the stove moved 23 cm: a "mixed" Free env
+    gives LIBERO's layout and both levels' edits, moves the stove only in edited episodes, and a restore from the
+    seed gives the same layout; the obstacle levels refuse the option."""
+    stove = scene_edit("goal", "L1", 2).fixtures["flat_stove_1"]
+    plain = gym.make("SafeLibero-Goal-Free-v0", task=2).unwrapped
+    mixed = gym.make("SafeLibero-Goal-Free-v0", task=2, layout="mixed").unwrapped
+    plain.reset(seed=0, options={"init_state": 3})
+    seen = set()
+    for seed in range(16):
+        mixed.reset(seed=seed, options={"init_state": 3})
+        layout = mixed.episode_layout
+        seen.add(layout)
+        shift = (0.0, 0.0) if layout == "libero" else stove
+        assert np.allclose(_xy(mixed, "flat_stove_1") - _xy(plain, "flat_stove_1"), shift, atol=1e-6), layout
+        if layout != "libero":
+            edit = scene_edit("goal", layout, 2)
+            for name, moved in edit.moved.items():
+                assert np.allclose(_xy(mixed, name) - _xy(plain, name), moved, atol=0.01), (layout, name)
+            assert all(np.all(np.abs(_xy(mixed, name)) > 1.0) for name in edit.removed)
+        state = mixed.scene.get_state()[1:].copy()
+        mixed.restore({"task": 2, "init_state": 3, "seed": seed})
+        assert mixed.episode_layout == layout and np.allclose(mixed.scene.get_state()[1:], state)
+    assert seen == {"libero", "L1", "L2"}
+    assert not mixed.scene.obstacles
+    plain.close()
+    mixed.close()
+    with pytest.raises(ValueError, match="Free-level option"):
+        SafeLiberoEnv("goal", "L1", layout="mixed")
+    with pytest.raises(ValueError, match="valid: libero, safelibero, mixed"):
+        SafeLiberoEnv("goal", "Free", layout="edited")
+
+
 def test_v2_draws_the_anchor_of_the_asked_type():
     env = gym.make("SafeLibero-Spatial-L1-v2", task=0)
     problem_axis = []

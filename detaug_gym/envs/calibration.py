@@ -71,7 +71,7 @@ class SceneEdit:
 
     Attributes:
         moved: free object name -> xy shift (m) added to its position in LIBERO's init states.
-        fixtures: fixture name -> xy shift (m) of its body, made once when the scene is built.
+        fixtures: fixture name -> xy shift (m) of its body, made at every reset.
         removed: free objects taken off the table at every reset.
     """
 

@@ -8,7 +8,9 @@ moved, distractors taken off; :mod:`~detaug_gym.envs.calibration`). Version 1 (`
 spot per task on LIBERO's unedited layouts. Version 0 (``-v0``, kept reproducible) is the generator the first
 tables were measured on: Level 1 close to the object to pick, Level 2 on
 the straight pick -> place path, on a static pedestal when needed (:mod:`~detaug_gym.envs.placement`). The Free
-level is the same scene with no obstacle bodies at all, so its simulator state has exactly LIBERO's layout.
+level is the same scene with no obstacle bodies at all, so its simulator state has exactly LIBERO's layout; with
+``layout="safelibero"`` (or ``"mixed"``) its episodes get the scene edits of an obstacle level instead (or of either
+kind), still without an obstacle: demos there teach a policy the layouts SafeLIBERO's episodes use.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import mujoco
 import numpy as np
 
 from detaug_gym.envs.base import ObstacleManipulationEnv
-from detaug_gym.envs.calibration import anchors_for, scene_edit
+from detaug_gym.envs.calibration import SceneEdit, anchors_for, scene_edit
 from detaug_gym.envs.obstacles import (
     OBSTACLE_SETS,
     SCENARIO_VERSIONS,
@@ -47,6 +49,7 @@ from detaug_gym.envs.suites import SCENARIO_VERSION, SUITES, TaskSpec, get_suite
 
 FIXTURE_SEED = 0  # global np.random seed for robosuite's one-off fixture draw at scene build
 SCENARIOS = ("procedural", "official")
+LAYOUTS = ("libero", "safelibero", "mixed")
 
 
 class SafeLiberoEnv(ObstacleManipulationEnv):
@@ -70,13 +73,18 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
             the ``-v2`` ids), 1 (calibrated spots on LIBERO's layouts) or 0 (the ``-v0`` ids); the official
             scenarios and the Free level do not depend on it.
         controller: ``"fast"`` or ``"stock"`` (robosuite's own controller).
+        layout: the Free level's object layout: ``"libero"`` (LIBERO's init states, as they are), ``"safelibero"``
+            (each episode gets the version-2 scene edit of one obstacle level that offers its task, drawn from the
+            seed: objects and fixtures moved, distractors off the table, no obstacle) or ``"mixed"`` (either, half
+            and half). :attr:`episode_layout` names the current episode's (``"libero"``, ``"L1"`` or ``"L2"``). The
+            obstacle levels' layout follows the scenario version.
         max_episode_steps: truncate after this many steps (``gym.make`` applies the suite's limit instead).
     """
 
     def __init__(self, suite: str, level: str, task: int | str | None = None,
                  obstacle: str | list[str] | None = None, init_state: int | None = None,
                  scenarios: str = "procedural", safelibero_root: str | None = None, settle: str = "steps",
-                 version: int = SCENARIO_VERSION, controller: str | None = None,
+                 version: int = SCENARIO_VERSION, controller: str | None = None, layout: str = "libero",
                  max_episode_steps: int | None = None, render_mode: str | None = None) -> None:
         valid = [name for name, s in SUITES.items() if s.entry_point.endswith(":SafeLiberoEnv")]
         spec = get_suite(suite)
@@ -87,7 +95,14 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
             raise ValueError(f"unknown scenarios {scenarios!r}; valid: {', '.join(SCENARIOS)}")
         if version not in SCENARIO_VERSIONS:
             raise ValueError(f"unknown scenario version {version!r}; valid: {', '.join(map(str, SCENARIO_VERSIONS))}")
+        if layout not in LAYOUTS:
+            raise ValueError(f"unknown layout {layout!r}; valid: {', '.join(LAYOUTS)}")
+        if layout != "libero" and level != "Free":
+            raise ValueError(f"layout={layout!r} is a Free-level option; the {level} scenarios' layout follows "
+                             "their version (-v2: SafeLIBERO's scene edits, -v0/-v1 and official: as they are)")
         self.scenarios = scenarios
+        self.layout = layout
+        self.episode_layout = "libero"
         self.version = version
         self.obstacle_types = tuple(OBSTACLE_SETS[version])
         self.files: SafeLiberoFiles | None = None
@@ -144,8 +159,6 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         else:
             scene, init_states = build_libero_scene(self.tasks[task], with_obstacles=self.level != "Free",
                                                     version=self.version)
-            if self._edits_scene:
-                _move_fixtures(scene, scene_edit(self.suite.name, self.level, task).fixtures)
         self._init_states[task] = init_states
         return scene
 
@@ -154,10 +167,25 @@ class SafeLiberoEnv(ObstacleManipulationEnv):
         """Whether episodes get SafeLIBERO's scene edits (procedural version 2 at L1 and L2)."""
         return self.files is None and self.version >= 2 and self.level in ("L1", "L2")
 
+    def _episode_edit(self, task: int, rng: np.random.Generator) -> SceneEdit | None:
+        """The scene edit of a new episode of ``task`` (None: LIBERO's layout); sets :attr:`episode_layout`."""
+        if self._edits_scene:
+            self.episode_layout = self.level
+            return scene_edit(self.suite.name, self.level, task)
+        self.episode_layout = "libero"
+        if self.layout == "libero" or (self.layout == "mixed" and rng.random() < 0.5):
+            return None
+        offered = [(level, tasks.index(task)) for level, tasks in sorted(self.suite.level_tasks.items())
+                   if task in tasks]
+        level, index = offered[int(rng.integers(len(offered)))]
+        self.episode_layout = level
+        return scene_edit(self.suite.name, level, index)
+
     def _load_init_state(self, scene: Scene, task: int, init_state: int, rng: np.random.Generator) -> None:
         scene.set_state(self._init_states[task][init_state])
-        if self._edits_scene:
-            edit = scene_edit(self.suite.name, self.level, task)
+        edit = self._episode_edit(task, rng)
+        if edit is not None:
+            _move_fixtures(scene, edit.fixtures)
             for name, shift in edit.moved.items():
                 scene.data.qpos[_free_joint_qpos(scene, name)][:2] += shift
             for i, name in enumerate(edit.removed):
@@ -282,13 +310,13 @@ def _take_off_table(scene: Scene, name: str, index: int) -> None:
 
 
 def _move_fixtures(scene: Scene, shifts: dict[str, tuple[float, float]]) -> None:
-    """Shift fixtures (bodies without joints) in xy for good: their nominal pose, which every reset restores."""
+    """Shift fixtures (bodies without joints) in xy from their nominal pose, for this episode (every reset puts
+    them back)."""
     for name, shift in shifts.items():
         body = scene.body_id(name)
         while scene.model.body_parentid[body] > 0:
             body = int(scene.model.body_parentid[body])
-        scene.nominal_body_pos[body, :2] += shift
-        scene.model.body_pos[body, :2] += shift
+        scene.model.body_pos[body, :2] = scene.nominal_body_pos[body, :2] + shift
 
 
 def _flat_under(scene: Scene, fp, *fixtures: Footprint | None) -> bool:
