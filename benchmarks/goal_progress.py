@@ -8,7 +8,9 @@ task ``i % tasks`` with reset seed ``seed + i``) and reads every goal predicate 
 placed: no predicate ever held (the first pick-place failed), some but not all (a later one failed), or all.
 
 Prints one row per task: episodes, how many reached all / some / none of the goal, the mean step each predicate
-first held, and how many predicates still held at the end (a placed object can be knocked out again).
+first held, how many episodes held the whole goal at the end (a placed object can be knocked out again), and of
+the episodes where no predicate ever held, how many lifted the first object (tracked object 0) by more than
+``LIFTED`` (a grasp that worked, so the place failed) and how many never did (the grasp failed).
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ from detaug_gym.envs.suites import SUITES
 from detaug_gym.policies.base import make_policy
 from detaug_gym.rollout import Hook, Step, rollout
 
+LIFTED = 0.05  # m: an object risen this far was grasped and carried
+
 
 class GoalPredicates(Hook):
     """Records, per goal predicate of the episode's LIBERO task, the first step after which it held."""
@@ -36,8 +40,11 @@ class GoalPredicates(Hook):
         self._predicates = self._sim.parsed_problem["goal_state"]
         self.first: list[int | None] = [None] * len(self.goals)
         self.final = [False] * len(self.goals)
+        self._start_z = np.asarray(obs["object_poses"])[:, 2].copy()  # (N,) tracked objects' heights
+        self.lift = np.zeros_like(self._start_z)  # (N,) highest rise of each tracked object (m)
 
     def on_step(self, step: Step) -> None:
+        self.lift = np.maximum(self.lift, np.asarray(step.next_obs["object_poses"])[:, 2] - self._start_z)
         self.final = [bool(self._sim._eval_predicate(p)) for p in self._predicates]
         for i, held in enumerate(self.final):
             if held and self.first[i] is None:
@@ -67,11 +74,13 @@ def main() -> None:
         rows[task].append(hook)
         if out:
             out.write(json.dumps({"task": task, "seed": args.seed + episode, "goals": hook.goals,
-                                  "first": hook.first, "final": hook.final, "steps": result.steps}) + "\n")
+                                  "first": hook.first, "final": hook.final, "steps": result.steps,
+                                  "lift": hook.lift.round(4).tolist()}) + "\n")
     if out:
         out.close()
     print(f"\n{args.method} on {args.suite} Free, {args.episodes} episodes (reset seeds {args.seed}..)\n")
-    print("| task | goal | episodes | all held | some | none | mean first step per predicate | held at the end |")
+    print("| task | goal | episodes | all held | some | none (first object lifted / not) "
+          "| mean first step per predicate | held at the end |")
     print("|---|---|---|---|---|---|---|---|")
     for task in sorted(rows):
         hooks = rows[task]
@@ -82,8 +91,11 @@ def main() -> None:
             steps = [h.first[i] for h in hooks if h.first[i] is not None]
             firsts.append(f"{np.mean(steps):.0f} ({len(steps)})" if steps else "- (0)")
         held = sum(all(h.final) for h in hooks)
+        stuck = [h for h, r in zip(hooks, reached) if r == 0]
+        lifted = sum(h.lift[0] > LIFTED for h in stuck)
         print(f"| {task} | {'; '.join(hooks[0].goals)} | {len(hooks)} | {reached.count(n_goals)} "
-              f"| {sum(0 < r < n_goals for r in reached)} | {reached.count(0)} | {' / '.join(firsts)} | {held} |")
+              f"| {sum(0 < r < n_goals for r in reached)} | {len(stuck)} ({lifted} / {len(stuck) - lifted}) "
+              f"| {' / '.join(firsts)} | {held} |")
 
 
 if __name__ == "__main__":
