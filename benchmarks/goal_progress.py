@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections import defaultdict
+from contextlib import nullcontext
 
 import gymnasium as gym
 import numpy as np
@@ -26,6 +27,7 @@ from tqdm import tqdm
 import detaug_gym  # noqa: F401  (registers the envs)
 from detaug_gym.envs.suites import SUITES
 from detaug_gym.policies.base import make_policy
+from detaug_gym.report import markdown
 from detaug_gym.rollout import Hook, Step, rollout
 
 LIFTED = 0.05  # m: an object risen this far was grasped and carried
@@ -36,8 +38,8 @@ class GoalPredicates(Hook):
 
     def on_start(self, env, obs: dict[str, np.ndarray], info: dict) -> None:
         self._sim = env.unwrapped.scene.sim_env
-        self.goals = [" ".join(goal) for goal in self._sim.parsed_problem["goal_state"]]
         self._predicates = self._sim.parsed_problem["goal_state"]
+        self.goals = [" ".join(goal) for goal in self._predicates]
         self.first: list[int | None] = [None] * len(self.goals)
         self.final = [False] * len(self.goals)
         self._start_z = np.asarray(obs["object_poses"])[:, 2].copy()  # (N,) tracked objects' heights
@@ -66,37 +68,36 @@ def main() -> None:
     policy = make_policy(args.method, suite=args.suite)
     tasks = len(SUITES[args.suite].tasks)
     rows: dict[int, list[GoalPredicates]] = defaultdict(list)
-    out = open(args.out, "w") if args.out else None
-    for episode in tqdm(range(args.episodes), desc=f"{args.method} {args.suite}", unit="ep"):
-        task = episode % tasks
-        hook = GoalPredicates()
-        result = rollout(env, policy, seed=args.seed + episode, options={"task": task}, hooks=[hook])
-        rows[task].append(hook)
-        if out:
-            out.write(json.dumps({"task": task, "seed": args.seed + episode, "goals": hook.goals,
-                                  "first": hook.first, "final": hook.final, "steps": result.steps,
-                                  "lift": hook.lift.round(4).tolist()}) + "\n")
-    if out:
-        out.close()
+    with open(args.out, "w") if args.out else nullcontext() as out:
+        for episode in tqdm(range(args.episodes), desc=f"{args.method} {args.suite}", unit="ep"):
+            task = episode % tasks
+            hook = GoalPredicates()
+            result = rollout(env, policy, seed=args.seed + episode, options={"task": task}, hooks=[hook])
+            rows[task].append(hook)
+            if out:  # one line per episode as it ends
+                out.write(json.dumps({"task": task, "seed": args.seed + episode, "goals": hook.goals,
+                                      "first": hook.first, "final": hook.final, "steps": result.steps,
+                                      "lift": hook.lift.round(4).tolist()}) + "\n")
+                out.flush()
     print(f"\n{args.method} on {args.suite} Free, {args.episodes} episodes (reset seeds {args.seed}..)\n")
-    print("| task | goal | episodes | all held | some | none (first object lifted / not) "
-          "| mean first step per predicate | held at the end |")
-    print("|---|---|---|---|---|---|---|---|")
-    for task in sorted(rows):
-        hooks = rows[task]
-        reached = [sum(f is not None for f in h.first) for h in hooks]
-        n_goals = len(hooks[0].goals)
-        firsts = []
-        for i in range(n_goals):
-            steps = [h.first[i] for h in hooks if h.first[i] is not None]
-            firsts.append(f"{np.mean(steps):.0f} ({len(steps)})" if steps else "- (0)")
-        held = sum(all(h.final) for h in hooks)
-        stuck = [h for h, r in zip(hooks, reached) if r == 0]
-        lifted = sum(h.lift[0] > LIFTED for h in stuck)
-        print(f"| {task} | {'; '.join(hooks[0].goals)} | {len(hooks)} | {reached.count(n_goals)} "
-              f"| {sum(0 < r < n_goals for r in reached)} | {len(stuck)} ({lifted} / {len(stuck) - lifted}) "
-              f"| {' / '.join(firsts)} | {held} |")
+    header = ["task", "goal", "episodes", "all held", "some", "none (first object lifted / not)",
+              "mean first step per predicate", "held at the end"]
+    print(markdown(header, [_task_row(task, rows[task]) for task in sorted(rows)]))
 
+
+def _task_row(task: int, hooks: list[GoalPredicates]) -> list[str]:
+    """One table row from the episodes of one task."""
+    n_goals = len(hooks[0].goals)
+    reached = [sum(f is not None for f in h.first) for h in hooks]
+    firsts = []
+    for i in range(n_goals):
+        steps = [h.first[i] for h in hooks if h.first[i] is not None]
+        firsts.append(f"{np.mean(steps):.0f} ({len(steps)})" if steps else "- (0)")
+    stuck = [h for h, r in zip(hooks, reached) if r == 0]
+    lifted = sum(h.lift[0] > LIFTED for h in stuck)
+    return [str(task), "; ".join(hooks[0].goals), str(len(hooks)), str(reached.count(n_goals)),
+            str(sum(0 < r < n_goals for r in reached)), f"{len(stuck)} ({lifted} / {len(stuck) - lifted})",
+            " / ".join(firsts), str(sum(all(h.final) for h in hooks))]
 
 if __name__ == "__main__":
     main()
