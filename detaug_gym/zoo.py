@@ -347,8 +347,9 @@ def plan(stages: dict[str, Stage], selected: list[str] | None, rebuild: list[str
             step = Step(stage, "rebuild", "output missing")
         else:
             step = Step(stage, "done", f"built {stamp.get('finished', '')}".strip())
-        if step.action == "resume" or (step.action in RUNS and step.why not in ("not built", "output missing")):
-            changes.add(name)
+        if step.action == "resume" or (step.action in RUNS and (step.why not in ("not built", "output missing")
+                                                                 or any(n in changes for n in stage.needs))):
+            changes.add(name)  # made from changed inputs: what was built from its old output is stale too
         steps.append(step)
     by_name = {s.stage.name: s for s in steps}
     wanted = set(STAGES if selected is None else selected)

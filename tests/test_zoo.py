@@ -188,6 +188,15 @@ def test_a_rerun_skips_a_changed_recipe_is_refused_and_rebuild_reruns_what_follo
     with pytest.raises(RecipeError, match="collect would change what augment_detaug, augment_demogen, train_base"):
         plan(stages, ["collect"], ["collect"])
 
+    # --rebuild train_base where the evaluation is absent: the evaluation runs anew, so the cards are stale too
+    (root / "work").rename(root / "work.away")
+    try:
+        rebuilt = {s.stage.name: s.action for s in plan(stages, list(STAGES), ["train_base"])}
+    finally:
+        (root / "work.away").rename(root / "work")
+    assert [rebuilt[n] for n in ("train_base", "train_detaug", "evaluate", "cards")] == [
+        "rebuild", "rebuild", "run", "rebuild"]
+
     card = root / "zoo" / "base" / "newton" / "README.md"
     card.unlink()  # a deleted output is rebuilt
     main(["build", *flags, "--stages", "cards"])
