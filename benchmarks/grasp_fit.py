@@ -27,6 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 import detaug_gym  # noqa: F401  (registers the envs)
+from detaug_gym.augment.segment import SegmentConfig, closed_runs
 from detaug_gym.envs.suites import SUITES
 from detaug_gym.models.dataset import read_demos
 from detaug_gym.models.policy import FlowPolicy, zoo_dir
@@ -36,10 +37,9 @@ from detaug_gym.rollout import Hook, Step, rollout
 
 
 def first_close(gripper: np.ndarray) -> int | None:
-    """Index of the first open -> close switch of gripper commands (T,), or None."""
-    closed = np.asarray(gripper) > 0
-    switches = np.flatnonzero(closed[1:] & ~closed[:-1]) + 1
-    return int(switches[0]) if len(switches) else None
+    """Index of the first close of gripper commands (T,) (a grasp as the augmentation segments it), or None."""
+    runs = closed_runs(gripper, SegmentConfig().min_closed)
+    return runs[0][0] if runs else None
 
 
 class FirstClose(Hook):
