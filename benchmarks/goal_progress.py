@@ -1,16 +1,21 @@
 """How far a policy gets through a task's goal: per goal predicate, when it first held (run by hand).
 
     python benchmarks/goal_progress.py --suite long --method base --episodes 40
+    python benchmarks/goal_progress.py --suite goal --task 3 --max-steps 600 --method base:checkpoint=PATH
 
 A task of LIBERO's is solved when every predicate of its BDDL goal holds (Long's have two: one per pick-place).
 A bench record says only solved or not; this runs ``--episodes`` Free episodes (tasks in turn, episode ``i`` on
-task ``i % tasks`` with reset seed ``seed + i``) and reads every goal predicate after each step, so a failure is
-placed: no predicate ever held (the first pick-place failed), some but not all (a later one failed), or all.
+task ``i % tasks``, or every one on ``--task``, with reset seed ``seed + i``) and reads every goal predicate after
+each step, so a failure is placed: no predicate ever held (the first pick-place failed), some but not all (a later
+one failed), or all.
 
 Prints one row per task: episodes, how many reached all / some / none of the goal, the mean step each predicate
 first held, how many episodes held the whole goal at the end (a placed object can be knocked out again), and of
 the episodes where no predicate ever held, how many lifted the first object (tracked object 0) by more than
 ``LIFTED`` (a grasp that worked, so the place failed) and how many never did (the grasp failed).
+``--max-steps`` replaces the suite's step limit: a task that the policy solves late, past the limit, is slow;
+one it does not solve with twice the limit is stuck. ``--out``'s lines also hold each tracked object's highest
+rise (``lift``) and largest horizontal displacement (``moved``; Goal's drawer region moves as the drawer opens).
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 import detaug_gym  # noqa: F401  (registers the envs)
+from detaug_gym.bench import parse_method
 from detaug_gym.envs.suites import SUITES
 from detaug_gym.policies.base import make_policy
 from detaug_gym.report import markdown
@@ -42,11 +48,14 @@ class GoalPredicates(Hook):
         self.goals = [" ".join(goal) for goal in self._predicates]
         self.first: list[int | None] = [None] * len(self.goals)
         self.final = [False] * len(self.goals)
-        self._start_z = np.asarray(obs["object_poses"])[:, 2].copy()  # (N,) tracked objects' heights
-        self.lift = np.zeros_like(self._start_z)  # (N,) highest rise of each tracked object (m)
+        self._start = np.asarray(obs["object_poses"])[:, :3].copy()  # (N, 3) tracked objects' positions
+        self.lift = np.zeros(len(self._start))  # (N,) highest rise of each tracked object (m)
+        self.moved = np.zeros(len(self._start))  # (N,) largest horizontal displacement (m): a drawer pulled open
 
     def on_step(self, step: Step) -> None:
-        self.lift = np.maximum(self.lift, np.asarray(step.next_obs["object_poses"])[:, 2] - self._start_z)
+        position = np.asarray(step.next_obs["object_poses"])[:, :3]
+        self.lift = np.maximum(self.lift, position[:, 2] - self._start[:, 2])
+        self.moved = np.maximum(self.moved, np.linalg.norm(position[:, :2] - self._start[:, :2], axis=1))
         self.final = [bool(self._sim._eval_predicate(p)) for p in self._predicates]
         for i, held in enumerate(self.final):
             if held and self.first[i] is None:
@@ -57,27 +66,37 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     libero = [name for name in SUITES if name != "newton"]
     parser.add_argument("--suite", default="long", help=f"a LIBERO suite: {', '.join(libero)}")
-    parser.add_argument("--method", default="base", help="a policy name of the zoo (make_policy), e.g. base, detaug")
+    parser.add_argument("--method", default="base",
+                        help="a method as the bench spells it, e.g. base, detaug:labels=zero, base:checkpoint=PATH")
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--seed", type=int, default=1000)
+    parser.add_argument("--task", type=int, help="run every episode on this task index (default: tasks in turn)")
+    parser.add_argument("--max-steps", type=int, help="step limit (default: the suite's)")
     parser.add_argument("--out", help="also write one JSON line per episode here")
     args = parser.parse_args()
     if args.suite not in libero:
         parser.error(f"--suite {args.suite!r}: valid are {', '.join(libero)}")
-    env = gym.make(SUITES[args.suite].env_id("Free"))
-    policy = make_policy(args.method, suite=args.suite)
     tasks = len(SUITES[args.suite].tasks)
+    if args.task is not None and not 0 <= args.task < tasks:
+        parser.error(f"--task {args.task}: {args.suite} has tasks 0..{tasks - 1}")
+    if args.max_steps is not None and args.max_steps < 1:
+        parser.error(f"--max-steps {args.max_steps}: give a positive step count")
+    limit = {} if args.max_steps is None else {"max_episode_steps": args.max_steps}
+    env = gym.make(SUITES[args.suite].env_id("Free"), **limit)
+    name, options = parse_method(args.method)
+    policy = make_policy(name, suite=args.suite, **options)
     rows: dict[int, list[GoalPredicates]] = defaultdict(list)
     with open(args.out, "w") if args.out else nullcontext() as out:
         for episode in tqdm(range(args.episodes), desc=f"{args.method} {args.suite}", unit="ep"):
-            task = episode % tasks
+            task = episode % tasks if args.task is None else args.task
             hook = GoalPredicates()
             result = rollout(env, policy, seed=args.seed + episode, options={"task": task}, hooks=[hook])
             rows[task].append(hook)
             if out:  # one line per episode as it ends
                 out.write(json.dumps({"task": task, "seed": args.seed + episode, "goals": hook.goals,
                                       "first": hook.first, "final": hook.final, "steps": result.steps,
-                                      "lift": hook.lift.round(4).tolist()}) + "\n")
+                                      "lift": hook.lift.round(4).tolist(),
+                                      "moved": hook.moved.round(4).tolist()}) + "\n")
                 out.flush()
     print(f"\n{args.method} on {args.suite} Free, {args.episodes} episodes (reset seeds {args.seed}..)\n")
     header = ["task", "goal", "episodes", "all held", "some", "none (first object lifted / not)",
