@@ -30,7 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 import detaug_gym  # noqa: F401  (registers the envs)
-from detaug_gym.bench import parse_method
+from detaug_gym.bench import check_methods, parse_method
 from detaug_gym.envs.suites import SUITES
 from detaug_gym.policies.base import make_policy
 from detaug_gym.report import markdown
@@ -81,6 +81,7 @@ def main() -> None:
         parser.error(f"--task {args.task}: {args.suite} has tasks 0..{tasks - 1}")
     if args.max_steps is not None and args.max_steps < 1:
         parser.error(f"--max-steps {args.max_steps}: give a positive step count")
+    check_methods([args.method], [args.suite])  # the bench's own errors for an unknown method or bad options
     limit = {} if args.max_steps is None else {"max_episode_steps": args.max_steps}
     env = gym.make(SUITES[args.suite].env_id("Free"), **limit)
     name, options = parse_method(args.method)
