@@ -194,9 +194,11 @@ def run(cfg: FinetuneConfig) -> str:
     zoo_root = base.parent.parent
     bench = ["--methods", *points, "--suites", cfg.suite, "--levels", cfg.level, "--episodes", str(cfg.episodes),
              "--seeds", str(cfg.seed), "--workers", str(cfg.jobs), "--out", str(out / "bench")]
-    tasks = [Task(name, "detaug_gym.train", argv, priority=1.0 if "demogen" in name else 0.0)
+    tasks = [Task(name, "detaug_gym.train", argv, priority=1.0 if "demogen" in name else 0.0,
+                  cores=int(argv[argv.index("--threads") + 1]) if "--threads" in argv else 1)
              for name, argv in commands.items()]
-    tasks.append(Task("bench", "detaug_gym.bench", bench, needs=tuple(commands), env={"DETAUG_ZOO": str(zoo_root)}))
+    tasks.append(Task("bench", "detaug_gym.bench", bench, needs=tuple(commands), env={"DETAUG_ZOO": str(zoo_root)},
+                      cores=cfg.jobs))
     run_tasks(tasks, cfg.jobs, out / "logs", f"finetune {cfg.suite}")
     rows = curves(read_records(out / "bench" / "episodes.jsonl"), points)
     level = get_suite(cfg.suite).check_level(cfg.level)

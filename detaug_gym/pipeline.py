@@ -1,8 +1,10 @@
 """Run the project's commands as subprocesses, several at once, each when the tasks it needs are done.
 
 The zoo build (:mod:`detaug_gym.zoo`) and the fine-tuning experiment (:mod:`detaug_gym.finetune`) are chains
-of the project's own commands (collect, augment, train, bench). :func:`run_tasks` runs such a chain: up to
-``jobs`` tasks at once (each command uses one core), the ready task with the highest ``priority`` first, each
+of the project's own commands (collect, augment, train, bench). :func:`run_tasks` runs such a chain on ``jobs``
+cores: a task takes the cores it declares (``cores``: a training's torch threads, a bench's workers; at most
+``jobs``, so a task that asks for more runs alone), the ready task with the highest ``priority`` starts first and
+no lower one starts before it (a two-core training is not starved by one-core tasks that keep a core busy), each
 command's output appended to ``<logs>/<name>.log`` (progress bars redrawn every 10 s), one tqdm bar over the
 tasks. Every command resumes when rerun, so a stopped pipeline loses nothing: a failed task stops the start of
 new ones and, once the running ones end, raises ``SystemExit`` with the tail of its log; Ctrl-C stops all.
@@ -30,13 +32,23 @@ class Task:
     priority: float = 0.0
     env: dict[str, str] = field(default_factory=dict)
     call: Callable[[], None] | None = None
+    cores: int = 1
+    """Cores the command keeps busy (its torch threads or bench workers); the scheduler counts them."""
 
 
-def ready_tasks(todo: list[Task], done: set[str], running: int, jobs: int) -> list[Task]:
-    """The tasks of ``todo`` to start now: those whose needs are ``done``, highest priority first, up to the
-    ``jobs - running`` free slots."""
+def ready_tasks(todo: list[Task], done: set[str], busy: int, jobs: int) -> list[Task]:
+    """The tasks of ``todo`` to start now, with ``busy`` of the ``jobs`` cores taken: those whose needs are
+    ``done``, highest priority first, while their cores (each clipped to ``jobs``) fit; the first that does not
+    fit stops the list, so it starts next, once enough cores are free."""
     startable = sorted((t for t in todo if all(n in done for n in t.needs)), key=lambda t: -t.priority)
-    return startable[:max(0, jobs - running)]
+    chosen = []
+    for task in startable:
+        cores = min(max(1, task.cores), jobs)
+        if busy + cores > jobs:
+            break
+        chosen.append(task)
+        busy += cores
+    return chosen
 
 
 def tail(path: Path, lines: int = 15) -> str:
@@ -55,7 +67,11 @@ def run_tasks(tasks: list[Task], jobs: int, logs: Path, desc: str, done: set[str
     logs.mkdir(parents=True, exist_ok=True)
     running: dict[str, tuple[subprocess.Popen, float]] = {}
     failed: list[str] = []
+    by_name = {t.name: t for t in tasks}
     bar = tqdm(total=len(todo), desc=desc, unit="task")
+
+    def busy() -> int:
+        return sum(min(max(1, by_name[name].cores), jobs) for name in running)
 
     def finish(task: Task, seconds: float) -> None:
         if on_finish is not None:
@@ -66,7 +82,7 @@ def run_tasks(tasks: list[Task], jobs: int, logs: Path, desc: str, done: set[str
 
     try:
         while todo or running:
-            for task in [] if failed else ready_tasks(todo, done, len(running), jobs):
+            for task in [] if failed else ready_tasks(todo, done, busy(), jobs):
                 todo.remove(task)
                 if on_start is not None:
                     on_start(task)
@@ -94,7 +110,7 @@ def run_tasks(tasks: list[Task], jobs: int, logs: Path, desc: str, done: set[str
                     continue
                 del running[name]
                 if proc.returncode == 0:
-                    finish(next(t for t in tasks if t.name == name), time.perf_counter() - tic)
+                    finish(by_name[name], time.perf_counter() - tic)
                 else:
                     failed.append(name)
                     tqdm.write(f"FAILED {name} (exit {proc.returncode}); last lines of {logs / name}.log:\n"

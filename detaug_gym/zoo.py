@@ -67,6 +67,9 @@ CHECKPOINT_OF = {"train_base": "base", "train_detaug": "detaug", "train_demogen"
 # augmentation and evaluation scale with the suite's step limit.
 RATES = {"collect": 0.77, "recovery": 1.06, "augment_detaug": 1.08, "augment_demogen": 1.0, "train_base": 0.166,
          "train_detaug": 0.23, "train_demogen": 0.72, "evaluate": 4.0, "cards": 0.0}
+# A training step on both cores (threads = 2, the build gives it both) against one: 0.086 vs 0.146 s for the
+# base network, measured alone on the 2-core machine (docs/models.md).
+TWO_THREAD_SPEEDUP = 1.7
 SPATIAL_STEPS = 220
 
 
@@ -138,6 +141,8 @@ class Stage:
     estimate_s: float
     env: dict[str, str] = field(default_factory=dict)
     key: str = ""
+    cores: int = 1
+    """Cores the command keeps busy: a training's ``threads``, the evaluation's ``workers`` (else 1)."""
 
     @property
     def module(self) -> str | None:
@@ -190,6 +195,7 @@ def build_stages(recipe: Recipe, paths: Paths) -> dict[str, Stage]:
     tasks = len(spec.tasks_for("Free"))
     argv: dict[str, list[str]] = {}
     estimate: dict[str, float] = {}
+    cores: dict[str, int] = {}
     for name in ("collect", "recovery"):
         o = {"demos": 50, **opts[name]}
         argv[name] = ["--env", spec.env_id("Free"), "--task", "all", "--out", str(files[name])] + to_argv(o)
@@ -210,7 +216,8 @@ def build_stages(recipe: Recipe, paths: Paths) -> dict[str, Stage]:
         argv[name] = (["--method", method, "--data", ",".join(map(str, data_of[name])), "--out", str(ckpt[name])]
                       + init + to_argv(o))
         _validate(recipe, name, argv[name])
-        estimate[name] = RATES[name] * int(o["steps"])
+        cores[name] = max(1, int(o.get("threads", 1)))
+        estimate[name] = RATES[name] * int(o["steps"]) / (TWO_THREAD_SPEEDUP if cores[name] > 1 else 1.0)
     o = {"episodes_per_task": 20, "seed": 0, "methods": ["scripted", "base", "detaug:labels=zero", "demogen"],
          **opts["evaluate"]}
     per_task, seed, methods = o.pop("episodes_per_task"), o.pop("seed"), o.pop("methods")
@@ -218,7 +225,8 @@ def build_stages(recipe: Recipe, paths: Paths) -> dict[str, Stage]:
                          str(per_task * tasks), "--seeds", str(seed), "--out", str(paths.work / "free")]
                         + to_argv(o))
     _validate(recipe, "evaluate", argv["evaluate"])
-    estimate["evaluate"] = RATES["evaluate"] * scale * per_task * tasks * len(methods) / max(1, o.get("workers", 1))
+    cores["evaluate"] = max(1, int(o.get("workers", 1)))
+    estimate["evaluate"] = RATES["evaluate"] * scale * per_task * tasks * len(methods) / cores["evaluate"]
     if opts["cards"]:
         raise RecipeError(f"{recipe.path}: [cards] takes no options")
     stages = {}
@@ -236,7 +244,8 @@ def build_stages(recipe: Recipe, paths: Paths) -> dict[str, Stage]:
             stamp = ckpt["train_base"] / "zoo_cards.json"  # committed with the cards it vouches for
         env = {"DETAUG_ZOO": str(z)} if name == "evaluate" else {}
         argv.setdefault(name, ["--suite", s, "--stages", name])  # the cards stage: this module, in process
-        stages[name] = Stage(name, argv[name], outputs, stamp, NEEDS[name], estimate.get(name, 0.0), env)
+        stages[name] = Stage(name, argv[name], outputs, stamp, NEEDS[name], estimate.get(name, 0.0), env,
+                             cores=cores.get(name, 1))
     for stage in stages.values():
         deps = "".join(stages[n].key for n in stage.needs)
         stage.key = hashlib.sha256(f"{stage.command()}|{deps}".encode()).hexdigest()[:16]
@@ -389,18 +398,20 @@ def priorities(stages: dict[str, Stage]) -> dict[str, float]:
 
 
 def wall_estimate(steps: list[Step], jobs: int) -> float:
-    """Wall time of the steps to run when ``jobs`` stages run at once, started as :func:`run_steps` does."""
+    """Wall time of the steps to run on ``jobs`` cores, started as :func:`run_steps` does."""
     from detaug_gym.pipeline import Task, ready_tasks
 
     order = priorities({s.stage.name: s.stage for s in steps})
-    todo = [Task(s.stage.name, s.stage.module, [], s.stage.needs, order[s.stage.name]) for s in steps
-            if s.action in ("run", "rebuild", "resume")]
+    todo = [Task(s.stage.name, s.stage.module, [], s.stage.needs, order[s.stage.name], cores=s.stage.cores)
+            for s in steps if s.action in ("run", "rebuild", "resume")]
     estimate = {s.stage.name: s.stage.estimate_s for s in steps}
+    cores = {s.stage.name: s.stage.cores for s in steps}
     ready = {s.stage.name for s in steps if s.action != "skip"} - {t.name for t in todo}
     running: dict[str, float] = {}
     clock = 0.0
     while todo or running:
-        for task in ready_tasks(todo, ready, len(running), jobs):
+        busy = sum(min(cores[n], jobs) for n in running)
+        for task in ready_tasks(todo, ready, busy, jobs):
             todo.remove(task)
             running[task.name] = clock + estimate[task.name]
         if not running:
@@ -434,13 +445,15 @@ def _clear(stage: Stage) -> None:
 
 
 def run_steps(steps: list[Step], stages: dict[str, Stage], recipe: Recipe, paths: Paths, jobs: int) -> None:
-    """Run the steps with :func:`detaug_gym.pipeline.run_tasks`, up to ``jobs`` stages at once, the longest chain
-    first; each stage's stamp says ``running`` while it runs and ``done`` once it has finished."""
+    """Run the steps with :func:`detaug_gym.pipeline.run_tasks` on ``jobs`` cores (a stage takes its
+    ``cores``), the longest chain first; each stage's stamp says ``running`` while it runs and ``done`` once it
+    has finished."""
     from detaug_gym.pipeline import Task, run_tasks
 
     order = priorities(stages)
     tasks = [Task(s.stage.name, s.stage.module, s.stage.argv, s.stage.needs, order[s.stage.name], s.stage.env,
-                  call=(lambda: write_cards(stages, recipe, paths)) if s.stage.module is None else None)
+                  call=(lambda: write_cards(stages, recipe, paths)) if s.stage.module is None else None,
+                  cores=s.stage.cores)
              for s in steps if s.action in ("run", "rebuild", "resume")]
     actions = {s.stage.name: s.action for s in steps}
 
@@ -482,7 +495,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"stages to run (default: every stage that is not built and is needed): {' '.join(STAGES)}")
     b.add_argument("--rebuild", nargs="+", default=[], metavar="STAGE",
                    help="delete these stages' output and rebuild them and every stage after them")
-    b.add_argument("--jobs", type=int, default=1, help="stages run at once (each uses one core; default 1)")
+    b.add_argument("--jobs", type=int, default=1,
+                   help="cores the build keeps busy: stages run side by side while their cores fit (a stage takes "
+                        "its training's threads or its evaluation's workers, else one; default 1)")
     b.add_argument("--data", default=None, help="demonstrations folder (default data/)")
     b.add_argument("--zoo", default=None, help="checkpoint root (default the repository's policies/ or $DETAUG_ZOO)")
     b.add_argument("--work", default=None, help="logs and evaluation results (default results/zoo/<suite>)")
