@@ -67,9 +67,10 @@ CHECKPOINT_OF = {"train_base": "base", "train_detaug": "detaug", "train_demogen"
 # augmentation and evaluation scale with the suite's step limit.
 RATES = {"collect": 0.77, "recovery": 1.06, "augment_detaug": 1.08, "augment_demogen": 1.0, "train_base": 0.166,
          "train_detaug": 0.23, "train_demogen": 0.72, "evaluate": 4.0, "cards": 0.0}
-# A training step on both cores (threads = 2, the build gives it both) against one: 0.086 vs 0.146 s for the
-# base network, measured alone on the 2-core machine (docs/models.md).
-TWO_THREAD_SPEEDUP = 1.7
+# A training step on both cores (threads = 2, the build gives it both) against one: 0.086-0.111 vs 0.146-0.176 s for
+# the base network, measured alone on the 2-core machine (docs/models.md).
+TWO_THREAD_SPEEDUP = 1.6
+COMPILE_SPEEDUP = 1.4  # train --compile against eager, 1 or 2 threads (docs/models.md)
 SPATIAL_STEPS = 220
 
 
@@ -217,7 +218,8 @@ def build_stages(recipe: Recipe, paths: Paths) -> dict[str, Stage]:
                       + init + to_argv(o))
         _validate(recipe, name, argv[name])
         cores[name] = max(1, int(o.get("threads", 1)))
-        estimate[name] = RATES[name] * int(o["steps"]) / (TWO_THREAD_SPEEDUP if cores[name] > 1 else 1.0)
+        estimate[name] = (RATES[name] * int(o["steps"]) / (TWO_THREAD_SPEEDUP if cores[name] > 1 else 1.0)
+                          / (COMPILE_SPEEDUP if o.get("compile") else 1.0))
     o = {"episodes_per_task": 20, "seed": 0, "methods": ["scripted", "base", "detaug:labels=zero", "demogen"],
          **opts["evaluate"]}
     per_task, seed, methods = o.pop("episodes_per_task"), o.pop("seed"), o.pop("methods")
