@@ -36,6 +36,11 @@ class Task:
     """Cores the command keeps busy (its torch threads or bench workers); the scheduler counts them."""
 
 
+def cores_taken(task: Task, jobs: int) -> int:
+    """The cores ``task`` holds while it runs: its ``cores``, at least 1 and at most ``jobs`` (then it runs alone)."""
+    return min(max(1, task.cores), jobs)
+
+
 def ready_tasks(todo: list[Task], done: set[str], busy: int, jobs: int) -> list[Task]:
     """The tasks of ``todo`` to start now, with ``busy`` of the ``jobs`` cores taken: those whose needs are
     ``done``, highest priority first, while their cores (each clipped to ``jobs``) fit; the first that does not
@@ -43,11 +48,10 @@ def ready_tasks(todo: list[Task], done: set[str], busy: int, jobs: int) -> list[
     startable = sorted((t for t in todo if all(n in done for n in t.needs)), key=lambda t: -t.priority)
     chosen = []
     for task in startable:
-        cores = min(max(1, task.cores), jobs)
-        if busy + cores > jobs:
+        if busy + cores_taken(task, jobs) > jobs:
             break
         chosen.append(task)
-        busy += cores
+        busy += cores_taken(task, jobs)
     return chosen
 
 
@@ -71,7 +75,7 @@ def run_tasks(tasks: list[Task], jobs: int, logs: Path, desc: str, done: set[str
     bar = tqdm(total=len(todo), desc=desc, unit="task")
 
     def busy() -> int:
-        return sum(min(max(1, by_name[name].cores), jobs) for name in running)
+        return sum(cores_taken(by_name[name], jobs) for name in running)
 
     def finish(task: Task, seconds: float) -> None:
         if on_finish is not None:

@@ -401,25 +401,23 @@ def priorities(stages: dict[str, Stage]) -> dict[str, float]:
 
 def wall_estimate(steps: list[Step], jobs: int) -> float:
     """Wall time of the steps to run on ``jobs`` cores, started as :func:`run_steps` does."""
-    from detaug_gym.pipeline import Task, ready_tasks
+    from detaug_gym.pipeline import Task, cores_taken, ready_tasks
 
     order = priorities({s.stage.name: s.stage for s in steps})
     todo = [Task(s.stage.name, s.stage.module, [], s.stage.needs, order[s.stage.name], cores=s.stage.cores)
             for s in steps if s.action in ("run", "rebuild", "resume")]
     estimate = {s.stage.name: s.stage.estimate_s for s in steps}
-    cores = {s.stage.name: s.stage.cores for s in steps}
     ready = {s.stage.name for s in steps if s.action != "skip"} - {t.name for t in todo}
-    running: dict[str, float] = {}
+    running: dict[str, tuple[float, Task]] = {}  # name -> (estimated end, task)
     clock = 0.0
     while todo or running:
-        busy = sum(min(cores[n], jobs) for n in running)
-        for task in ready_tasks(todo, ready, busy, jobs):
+        for task in ready_tasks(todo, ready, sum(cores_taken(t, jobs) for _, t in running.values()), jobs):
             todo.remove(task)
-            running[task.name] = clock + estimate[task.name]
+            running[task.name] = (clock + estimate[task.name], task)
         if not running:
             break
-        name = min(running, key=running.get)
-        clock = running.pop(name)
+        name = min(running, key=lambda n: running[n][0])
+        clock = running.pop(name)[0]
         ready.add(name)
     return clock
 
