@@ -56,7 +56,7 @@ def eval_method(method: str, stages: dict) -> str | None:
 
 def free_rows(records: list[dict], method: str, suite: str) -> tuple[list[list[str]], tuple[int, int, int]]:
     """Per-task rows ``[task, key, method, scripted]`` and totals ``(method successes, expert successes, n)``."""
-    from detaug_gym.report import cell_stats
+    from detaug_gym.report import cell_stats, task_cell
 
     tasks = SUITES[suite].tasks_for("Free")
     rows, totals = [], [0, 0, 0]
@@ -64,8 +64,7 @@ def free_rows(records: list[dict], method: str, suite: str) -> tuple[list[list[s
         mine = [r for r in records if r["method"] == method and r["task"] == index]
         expert = [r for r in records if r["method"] == "scripted" and r["task"] == index]
         a, b = cell_stats(mine), cell_stats(expert)
-        rows.append([str(index), spec.key, f"{a.success}/{a.n}" + (f" ({a.errors} err.)" if a.errors else ""),
-                     f"{b.success}/{b.n}"])
+        rows.append([str(index), spec.key, task_cell(mine, "Free"), f"{b.success}/{b.n}"])
         totals = [totals[0] + a.success, totals[1] + b.success, totals[2] + a.n]
     return rows, tuple(totals)
 

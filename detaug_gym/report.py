@@ -248,8 +248,22 @@ def level_rows(summary) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
+def task_cell(records: list[dict], level: str) -> str:
+    """``"9/20 (3 coll., 1 err., 1.4 of 2 goals)"``: one method's successes over its episodes of one task, with
+    its collisions (not on Free), errors, and for a task of several sub-goals the mean of the most of them met at
+    one step (records written before the bench kept ``goals`` have none); ``"-"`` without episodes."""
+    c = _count(records)
+    if not c.n:
+        return "-"
+    notes = ([f"{c.collision} coll."] if level != "Free" else []) + ([f"{c.errors} err."] if c.errors else [])
+    several = [r for r in records if (r.get("goals") or 0) > 1]
+    if several:
+        notes.append(f"{_mean([r['goals_met'] for r in several]):.1f} of {max(r['goals'] for r in several)} goals")
+    return f"{c.success}/{c.n}" + (f" ({', '.join(notes)})" if notes else "")
+
+
 def task_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
-    """One row per (suite, level, task): ``successes/episodes`` (collisions, errors in brackets) per method."""
+    """One row per (suite, level, task): :func:`task_cell` per method."""
     groups: dict[tuple, dict[str, list[dict]]] = defaultdict(lambda: defaultdict(list))
     for r in records:
         groups[(r["suite"], r["level"], r["task"])][r["method"]].append(r)
@@ -257,12 +271,7 @@ def task_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
     header = ["Suite", "Level", "Task", *methods]
     rows = []
     for (suite, level, task), by_method in sorted(groups.items()):
-        cells = []
-        for m in methods:
-            c = _count(by_method.get(m, []))
-            notes = ([f"{c.collision} coll."] if level != "Free" else []) + ([f"{c.errors} err."] if c.errors else [])
-            cells.append("-" if not c.n else f"{c.success}/{c.n}" + (f" ({', '.join(notes)})" if notes else ""))
-        rows.append([suite, level, str(task), *cells])
+        rows.append([suite, level, str(task), *(task_cell(by_method.get(m, []), level) for m in methods)])
     return header, rows
 
 

@@ -248,7 +248,9 @@ class EpisodeRecord:
     DetAug's selected costs, AEGIS's interventions, CAPE's guided replans). ``obstacle_pose`` is the settled
     pose (position, xyzw quaternion) the collision rule measures from; ``first_collision_step`` the step
     (1-based) at which the obstacle first moved; ``steps`` the episode's length (ETS); ``run_seed`` the bench
-    seed the episode seed derives from; ``video`` the mp4 of the episode when one was rendered.
+    seed the episode seed derives from; ``video`` the mp4 of the episode when one was rendered; ``goals`` the
+    task's number of sub-goals (goal predicates) and ``goals_met`` the most of them that held at one step (a Long
+    episode that placed one of its two objects and timed out has 1 of 2).
     """
 
     method: str
@@ -275,6 +277,8 @@ class EpisodeRecord:
     first_collision_step: int | None = None
     video: str | None = None
     collision_cause: dict | None = None
+    goals: int | None = None
+    goals_met: int | None = None
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -304,6 +308,20 @@ class ObstacleMetrics(Hook):
         self.collision |= bool(step.info["collision"])
         self.contact |= bool(step.info["robot_obstacle_contact"])
         self.clearance = min(self.clearance, float(step.info["min_clearance"]))
+
+
+class GoalProgress(Hook):
+    """The task's number of sub-goals and the most of them that held at one step."""
+
+    def __init__(self) -> None:
+        self.goals: int | None = None
+        self.best = 0
+
+    def on_start(self, env, obs: dict[str, np.ndarray], info: dict) -> None:
+        self.goals, self.best = int(info["goals"]), int(info["goals_met"])
+
+    def on_step(self, step: Step) -> None:
+        self.best = max(self.best, int(step.info["goals_met"]))
 
 
 RECENT_TOUCH = 5  # steps: a touch this recent before the obstacle moved is taken as the hit
@@ -386,9 +404,9 @@ class BenchEpisode:
         self.policy = policy
         self.record = EpisodeRecord(key.method, key.env_id, suite, level, key.task, key.episode, key.seed,
                                     run_seed=run_seed)
-        self.metrics, self.attribution = ObstacleMetrics(), CollisionAttribution(policy)
+        self.metrics, self.attribution, self.progress = ObstacleMetrics(), CollisionAttribution(policy), GoalProgress()
         self.run = Rollout(env, policy, seed=key.seed, options={**(options or {}), "task": key.task},
-                           hooks=[self.metrics, self.attribution, *hooks])
+                           hooks=[self.metrics, self.attribution, self.progress, *hooks])
         self.finished = False
         self._start = time.perf_counter()
 
@@ -435,6 +453,8 @@ class BenchEpisode:
         rec.collision, rec.contact, rec.steps = metrics.collision, metrics.contact, metrics.steps
         rec.obstacle_pose, rec.first_collision_step = metrics.obstacle_pose, metrics.first_collision
         rec.collision_cause = self.attribution.cause()
+        if self.progress.goals is not None:  # None when the episode failed before it started
+            rec.goals, rec.goals_met = self.progress.goals, self.progress.best
         rec.min_clearance = None if math.isinf(metrics.clearance) else metrics.clearance
         rec.wall_time = time.perf_counter() - self._start
         return rec

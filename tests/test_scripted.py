@@ -144,3 +144,31 @@ def test_expert_lets_go_of_the_bowl_without_dragging_it_off_the_plate(spatial_en
     # bowl's axis as the fingers open, so the outer pad stays about where it was.
     success, _ = _benchmark_episode(spatial_env, task=3, index=40)
     assert success
+
+
+def test_long_episode_records_its_two_sub_goals_met_one_after_the_other():
+    # A Long task places two objects; the env counts its goal predicates that hold (info "goals_met") and the
+    # bench's record keeps the most met at one step, so a time-out that placed one object reads 1 of 2.
+    from detaug_gym.report import task_rows
+    from detaug_gym.rollout import EpisodeKey, Hook, run_episode
+
+    class Counts(Hook):
+        def __init__(self):
+            self.met = []
+
+        def on_step(self, step):
+            self.met.append(step.info["goals_met"])
+
+    env = gym.make("SafeLibero-Long-Free-v0")
+    counts = Counts()
+    try:
+        record = run_episode(env, make_policy("scripted"), EpisodeKey("scripted", "SafeLibero-Long-Free-v0", 0, 0, 3),
+                             "long", "Free", hooks=[counts])
+    finally:
+        env.close()
+    assert record.success and (record.goals, record.goals_met) == (2, 2)
+    first_one, first_two = counts.met.index(1), counts.met.index(2)
+    assert 0 < first_one < first_two == len(counts.met) - 1  # the first placement comes well before the second
+    timed_out = {**record.to_json(), "success": False, "termination": "timeout", "goals_met": 1}
+    _, rows = task_rows([record.to_json(), timed_out])
+    assert rows[0][3] == "1/2 (1.5 of 2 goals)"

@@ -79,7 +79,9 @@ class ObstacleManipulationEnv(gym.Env):
         Obstacle entries are zero (mask 0) without an obstacle, support entries without a support.
     Action: ``Box(-1, 1, (7,))``: OSC_POSE delta (scales in :mod:`detaug_gym.actions`) and the gripper
         (-1 open, +1 close). Wrong shapes and non-finite values raise ``ValueError``.
-    Info (every step): ``is_success``, ``collision`` (latched), ``robot_obstacle_contact``,
+    Info (every step): ``is_success``, ``goals_met`` (how many of the task's sub-goals hold now: its goal
+        predicates, e.g. two for a Long task that places two objects; success is all of them), ``goals``
+        (the task's number of sub-goals), ``collision`` (latched), ``robot_obstacle_contact``,
         ``obstacle_contacts`` (who touches the obstacle now, e.g. ``("gripper:gripper0_leftfinger",
         "held:akita_black_bowl_1")``; see :meth:`~detaug_gym.envs.scene.Scene.contact_labels`),
         ``collision_bodies`` (at the step the collision starts: the contacts, or when a fast hit left none at the
@@ -384,9 +386,12 @@ class ObstacleManipulationEnv(gym.Env):
             displacement = float(np.abs(self._obstacle_position() - self._obstacle_ref).sum())
             clearance = self.scene.min_distance(self._obstacle_geoms())
         hit = not self._collided and displacement > COLLISION_DISPLACEMENT
+        goals = self.scene.goals_fn()
         self._collided = self._collided or hit
         return {
-            "is_success": bool(self.scene.success_fn()),
+            "is_success": all(goals),
+            "goals_met": sum(goals),
+            "goals": len(goals),
             "collision": self._collided,
             "robot_obstacle_contact": any(c.startswith(ROBOT_CONTACTS) for c in contacts),
             "obstacle_contacts": contacts,

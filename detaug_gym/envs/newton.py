@@ -135,19 +135,19 @@ def build_newton_scene(with_cylinder: bool) -> Scene:
     sim_env.reset()
     scene_ref: list[Scene] = []
 
-    def success() -> bool:
+    def goals() -> tuple[bool]:
         scene = scene_ref[0]
         cube = scene.data.xpos[scene.body_id("cube")]
         target = scene.pose_of("target")
         speed = np.linalg.norm(scene.data.cvel[scene.body_id("cube")][3:])
-        return bool(np.linalg.norm(cube[:2] - target[:2]) < SUCCESS_RADIUS and cube[2] < TABLE_TOP + 0.03
-                    and speed < 0.05)
+        return (bool(np.linalg.norm(cube[:2] - target[:2]) < SUCCESS_RADIUS and cube[2] < TABLE_TOP + 0.03
+                     and speed < 0.05),)
 
     m = sim_env.sim.model._model
     kinds = procedural_bodies(("cylinder",)) if with_cylinder else {}
     extra_q, extra_v = (7, 6) if with_cylinder else (0, 0)
     scene = Scene(sim_env, [PickPlace("cube", "target")], ["cube", "target"], kinds,
-                  (m.nq - extra_q, m.nv - extra_v), success_fn=success)
+                  (m.nq - extra_q, m.nv - extra_v), goals_fn=goals)
     scene_ref.append(scene)
     mujoco.mj_forward(scene.model, scene.data)
     return scene

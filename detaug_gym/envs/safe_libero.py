@@ -406,7 +406,10 @@ def libero_scene(sim_env, obstacle_bodies: dict[str, str], state_size: tuple[int
         for name in (step.obj, step.target):
             if name not in tracked:
                 tracked.append(name)
-    return Scene(sim_env, pick_places, tracked, obstacle_bodies, state_size, success_fn=sim_env._check_success,
+    def goals() -> tuple[bool, ...]:  # LIBERO's _check_success is the conjunction of these
+        return tuple(bool(sim_env._eval_predicate(g)) for g in goal)
+
+    return Scene(sim_env, pick_places, tracked, obstacle_bodies, state_size, goals_fn=goals,
                  parked=parked, upright_x=upright_x)
 
 

@@ -57,14 +57,15 @@ class Scene:
         tracked: names (bodies or sites) whose poses fill ``object_poses``.
         obstacle_bodies: ``{kind: root body name}`` of the obstacles in the model, may be empty.
         state_size: ``(nq, nv)`` of the state layout without obstacles (LIBERO's init-state layout).
-        success_fn: ``() -> bool`` evaluating the task's goal on the current sim state.
+        goals_fn: ``() -> tuple[bool, ...]``, one flag per sub-goal of ``pick_places`` (in order): whether it
+            holds in the current sim state. The task succeeds when all of them hold.
         parked: the obstacles are the procedural set (:mod:`~detaug_gym.envs.obstacles`), parked out of the
             scene until an episode activates one; ``False`` when the init state poses them (official scenarios).
         upright_x: ``{kind: rotation about x (rad)}`` that stands an obstacle type upright (default none).
     """
 
     def __init__(self, sim_env, pick_places: list[PickPlace], tracked: list[str], obstacle_bodies: dict[str, str],
-                 state_size: tuple[int, int], success_fn, parked: bool = True,
+                 state_size: tuple[int, int], goals_fn, parked: bool = True,
                  upright_x: dict[str, float] | None = None) -> None:
         self.sim_env = sim_env
         self.model: mujoco.MjModel = sim_env.sim.model._model
@@ -72,7 +73,7 @@ class Scene:
         self.robot = sim_env.robots[0]
         self.pick_places = pick_places
         self.tracked = tracked
-        self.success_fn = success_fn
+        self.goals_fn = goals_fn
         self.nq0, self.nv0 = state_size
         m = self.model
         self.arm_qpos = np.array([m.jnt_qposadr[self._joint(j)] for j in ARM_JOINTS])
