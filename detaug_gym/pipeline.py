@@ -4,7 +4,9 @@ The zoo build (:mod:`detaug_gym.zoo`) and the fine-tuning experiment (:mod:`deta
 of the project's own commands (collect, augment, train, bench). :func:`run_tasks` runs such a chain on ``jobs``
 cores: a task takes the cores it declares (``cores``: a training's torch threads, a bench's workers; at most
 ``jobs``, so a task that asks for more runs alone), the ready task with the highest ``priority`` starts first and
-no lower one starts before it (a two-core training is not starved by one-core tasks that keep a core busy), each
+no lower one starts before it (a two-core training is not starved by one-core tasks that keep a core busy), except
+one that fits the free cores and is estimated to end before the waiting task's cores free up (backfilling: a core
+is not left idle for nothing; ``estimate_s`` 0, unknown, never backfills nor frees early), each
 command's output appended to ``<logs>/<name>.log`` (progress bars redrawn every 10 s), one tqdm bar over the
 tasks. Every command resumes when rerun, so a stopped pipeline loses nothing: a failed task stops the start of
 new ones and, once the running ones end, raises ``SystemExit`` with the tail of its log; Ctrl-C stops all.
@@ -34,6 +36,8 @@ class Task:
     call: Callable[[], None] | None = None
     cores: int = 1
     """Cores the command keeps busy (its torch threads or bench workers); the scheduler counts them."""
+    estimate_s: float = 0.0
+    """Its expected run time (0: unknown), for backfilling."""
 
 
 def cores_taken(task: Task, jobs: int) -> int:
@@ -41,18 +45,37 @@ def cores_taken(task: Task, jobs: int) -> int:
     return min(max(1, task.cores), jobs)
 
 
-def ready_tasks(todo: list[Task], done: set[str], busy: int, jobs: int) -> list[Task]:
-    """The tasks of ``todo`` to start now, with ``busy`` of the ``jobs`` cores taken: those whose needs are
-    ``done``, highest priority first, while their cores (each clipped to ``jobs``) fit; the first that does not
-    fit stops the list, so it starts next, once enough cores are free."""
+def ready_tasks(todo: list[Task], done: set[str], running: list[tuple[Task, float]], jobs: int) -> list[Task]:
+    """The tasks of ``todo`` to start now, beside ``running`` (each with its estimated seconds left) on ``jobs``
+    cores: those whose needs are ``done``, highest priority first, while their cores (each clipped to ``jobs``)
+    fit. The first that does not fit waits for cores and starts next; after it, only a task that fits the free
+    cores and whose ``estimate_s`` ends before enough cores for the waiting one are expected to free up."""
     startable = sorted((t for t in todo if all(n in done for n in t.needs)), key=lambda t: -t.priority)
-    chosen = []
+    busy = sum(cores_taken(t, jobs) for t, _ in running)
+    chosen: list[Task] = []
+    wait: float | None = None  # seconds until the waiting task's cores are expected free
     for task in startable:
-        if busy + cores_taken(task, jobs) > jobs:
-            break
+        cores = cores_taken(task, jobs)
+        if busy + cores > jobs:
+            if wait is None:
+                wait = _frees_in(running, busy + cores - jobs, jobs)
+            continue
+        if wait is not None and not 0.0 < task.estimate_s <= wait:
+            continue
         chosen.append(task)
-        busy += cores_taken(task, jobs)
+        busy += cores
+        running = [*running, (task, task.estimate_s)]
     return chosen
+
+
+def _frees_in(running: list[tuple[Task, float]], cores: int, jobs: int) -> float:
+    """Estimated seconds until ``cores`` of the running tasks' cores are free (the soonest-ending first)."""
+    freed = 0
+    for task, left in sorted(running, key=lambda r: r[1]):
+        freed += cores_taken(task, jobs)
+        if freed >= cores:
+            return max(left, 0.0) if task.estimate_s > 0.0 else 0.0
+    return 0.0
 
 
 def tail(path: Path, lines: int = 15) -> str:
@@ -74,8 +97,9 @@ def run_tasks(tasks: list[Task], jobs: int, logs: Path, desc: str, done: set[str
     by_name = {t.name: t for t in tasks}
     bar = tqdm(total=len(todo), desc=desc, unit="task")
 
-    def busy() -> int:
-        return sum(cores_taken(by_name[name], jobs) for name in running)
+    def in_flight() -> list[tuple[Task, float]]:
+        now = time.perf_counter()
+        return [(by_name[name], by_name[name].estimate_s - (now - tic)) for name, (_, tic) in running.items()]
 
     def finish(task: Task, seconds: float) -> None:
         if on_finish is not None:
@@ -86,7 +110,7 @@ def run_tasks(tasks: list[Task], jobs: int, logs: Path, desc: str, done: set[str
 
     try:
         while todo or running:
-            for task in [] if failed else ready_tasks(todo, done, busy(), jobs):
+            for task in [] if failed else ready_tasks(todo, done, in_flight(), jobs):
                 todo.remove(task)
                 if on_start is not None:
                     on_start(task)

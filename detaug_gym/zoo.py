@@ -401,19 +401,19 @@ def priorities(stages: dict[str, Stage]) -> dict[str, float]:
 
 def wall_estimate(steps: list[Step], jobs: int) -> float:
     """Wall time of the steps to run on ``jobs`` cores, started as :func:`run_steps` does."""
-    from detaug_gym.pipeline import Task, cores_taken, ready_tasks
+    from detaug_gym.pipeline import Task, ready_tasks
 
     order = priorities({s.stage.name: s.stage for s in steps})
-    todo = [Task(s.stage.name, s.stage.module, [], s.stage.needs, order[s.stage.name], cores=s.stage.cores)
+    todo = [Task(s.stage.name, s.stage.module, [], s.stage.needs, order[s.stage.name], cores=s.stage.cores,
+                 estimate_s=s.stage.estimate_s)
             for s in steps if s.action in ("run", "rebuild", "resume")]
-    estimate = {s.stage.name: s.stage.estimate_s for s in steps}
     ready = {s.stage.name for s in steps if s.action != "skip"} - {t.name for t in todo}
     running: dict[str, tuple[float, Task]] = {}  # name -> (estimated end, task)
     clock = 0.0
     while todo or running:
-        for task in ready_tasks(todo, ready, sum(cores_taken(t, jobs) for _, t in running.values()), jobs):
+        for task in ready_tasks(todo, ready, [(t, end - clock) for end, t in running.values()], jobs):
             todo.remove(task)
-            running[task.name] = (clock + estimate[task.name], task)
+            running[task.name] = (clock + task.estimate_s, task)
         if not running:
             break
         name = min(running, key=lambda n: running[n][0])
@@ -453,7 +453,7 @@ def run_steps(steps: list[Step], stages: dict[str, Stage], recipe: Recipe, paths
     order = priorities(stages)
     tasks = [Task(s.stage.name, s.stage.module, s.stage.argv, s.stage.needs, order[s.stage.name], s.stage.env,
                   call=(lambda: write_cards(stages, recipe, paths)) if s.stage.module is None else None,
-                  cores=s.stage.cores)
+                  cores=s.stage.cores, estimate_s=s.stage.estimate_s)
              for s in steps if s.action in ("run", "rebuild", "resume")]
     actions = {s.stage.name: s.action for s in steps}
 
