@@ -43,9 +43,8 @@ class GoalPredicates(Hook):
     """Records, per goal predicate of the episode's LIBERO task, the first step after which it held."""
 
     def on_start(self, env, obs: dict[str, np.ndarray], info: dict) -> None:
-        self._sim = env.unwrapped.scene.sim_env
-        self._predicates = self._sim.parsed_problem["goal_state"]
-        self.goals = [" ".join(goal) for goal in self._predicates]
+        self._scene = env.unwrapped.scene
+        self.goals = [f"{g.relation} {g.obj} {g.target}" for g in self._scene.pick_places]
         self.first: list[int | None] = [None] * len(self.goals)
         self.final = [False] * len(self.goals)
         self._start = np.asarray(obs["object_poses"])[:, :3].copy()  # (N, 3) tracked objects' positions
@@ -56,7 +55,7 @@ class GoalPredicates(Hook):
         position = np.asarray(step.next_obs["object_poses"])[:, :3]
         self.lift = np.maximum(self.lift, position[:, 2] - self._start[:, 2])
         self.moved = np.maximum(self.moved, np.linalg.norm(position[:, :2] - self._start[:, :2], axis=1))
-        self.final = [bool(self._sim._eval_predicate(p)) for p in self._predicates]
+        self.final = list(self._scene.goals_fn())  # the env's own sub-goal flags (its info["goals_met"] counts them)
         for i, held in enumerate(self.final):
             if held and self.first[i] is None:
                 self.first[i] = step.index
