@@ -69,6 +69,19 @@ def free_rows(records: list[dict], method: str, suite: str) -> tuple[list[list[s
     return rows, tuple(totals)
 
 
+def missed(method: str, mine: int, expert: int) -> bool:
+    """Whether ``method`` has the zoo's target and misses it."""
+    return method in HAS_TARGET and expert > 0 and mine / expert < TARGET
+
+
+def tried_section(recipe) -> list[str]:
+    """The card's lines on what was measured to close a missed target (the recipe's ``tried``)."""
+    if not recipe.tried:
+        return []
+    return [f"What was measured or tried to close it (`{recipe.path.name}`'s `tried`; each measured on the same Free "
+            "episodes unless it says otherwise):", "", *(f"- {line}" for line in recipe.tried), ""]
+
+
 def status(method: str, mine: int, expert: int, n: int) -> str:
     """The card's status line: successes with a Wilson interval, the share of the expert's, and the target."""
     from detaug_gym.report import wilson
@@ -151,6 +164,7 @@ def card(method: str, train_stage: str, stages: dict, recipe, paths) -> str:
         "",
         status(method, mine, expert, n),
         "",
+        *(tried_section(recipe) if missed(method, mine, expert) else []),
         f"Built by `python -m detaug_gym.zoo build --suite {suite}` from `{recipe.path.name}` "
         f"(`policies/recipes/`); this card is written by its `cards` stage. Load it with "
         f"`make_policy(\"{method}\", suite=\"{suite}\")`.",

@@ -81,11 +81,14 @@ class RecipeError(ValueError):
 # ---------------------------------------------------------------------------------------------- recipe
 @dataclass
 class Recipe:
-    """A suite's declared recipe: per stage, its command-line options (``{"steps": 9000, ...}``)."""
+    """A suite's declared recipe: per stage, its command-line options (``{"steps": 9000, ...}``), and ``tried``:
+    what was measured to close a missed target (one line each, with where it is written up), which the model
+    cards list under a missed status."""
 
     suite: str
     path: Path
     options: dict[str, dict]
+    tried: tuple[str, ...] = ()
 
     @classmethod
     def load(cls, suite: str, path: str | os.PathLike | None = None) -> Recipe:
@@ -103,13 +106,16 @@ class Recipe:
         declared = data.pop("suite", spec.name)
         if declared != spec.name:
             raise RecipeError(f"{path}: declares suite {declared!r}, built as {spec.name!r}")
+        tried = data.pop("tried", [])
+        if not isinstance(tried, list) or not all(isinstance(t, str) for t in tried):
+            raise RecipeError(f"{path}: tried must be a list of strings (what was measured, one each)")
         for stage, opts in data.items():
             if stage not in STAGES or not isinstance(opts, dict):
                 raise RecipeError(f"{path}: [{stage}] is not a stage; stages: {', '.join(STAGES)}")
             wired = set(opts) & set(WIRED.get(stage.split("_")[0] if stage != "recovery" else "collect", ()))
             if wired:
                 raise RecipeError(f"{path}: [{stage}] sets {', '.join(sorted(wired))}, which the zoo wires itself")
-        return cls(spec.name, path, {s: dict(data.get(s, {})) for s in STAGES})
+        return cls(spec.name, path, {s: dict(data.get(s, {})) for s in STAGES}, tuple(tried))
 
 
 def to_argv(options: dict) -> list[str]:

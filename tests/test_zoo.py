@@ -17,6 +17,7 @@ from detaug_gym.zoo import STAGES, Paths, Recipe, RecipeError, build_stages, mai
 
 TINY = """
 suite = "newton"
+tried = ["3 training steps: not enough (this test)"]
 [collect]
 demos = 2
 [recovery]
@@ -72,6 +73,7 @@ def test_every_suite_has_a_recipe_its_commands_accept(suite):
     ("[augment_detaug]\ncopiez = 2\n", r"\[augment_detaug\]: unknown options --copiez 2"),
     ("suite = 'goal'\n", r"declares suite 'goal'"),
     ("[cards]\nx = 1\n", r"\[cards\] takes no options"),
+    ("tried = 'more steps'\n", r"tried must be a list of strings"),
 ])
 def test_a_bad_recipe_is_refused_with_the_stage_and_the_reason(tmp_path, text, message):
     with pytest.raises(RecipeError, match=message):
@@ -140,6 +142,9 @@ def test_a_tiny_build_runs_every_stage_and_writes_cards(tiny_build):
         assert n and int(n.group(2)) == 1, card
         assert "python -m detaug_gym.collect --env Newton-PickPlace-v0" in card
         assert "| 0 | newton_cube |" in card
+        # what was tried is listed under a missed target only (demogen has none)
+        assert ("- 3 training steps: not enough (this test)" in card) == ("**missed**" in card)
+    assert "- 3 training steps" in (root / "zoo" / "base" / "newton" / "README.md").read_text()  # 3 steps miss
     detaug_card = (root / "zoo" / "detaug" / "newton" / "README.md").read_text()
     assert "newton_detaug.hdf5" in detaug_card and "copies requested from 1 sources" in detaug_card
     records = [json.loads(line) for line in (root / "work" / "free" / "episodes.jsonl").read_text().splitlines()]
