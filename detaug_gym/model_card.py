@@ -93,7 +93,7 @@ def status(method: str, mine: int, expert: int, n: int) -> str:
             f"{lo:.0f}-{hi:.0f} %); the scripted expert solves {expert} of the same {n}.")
     if method in HAS_TARGET and expert:
         share = mine / expert
-        verdict = "met" if share >= TARGET else f"**missed** by {100 * (TARGET - share):.1f} points"
+        verdict = f"**missed** by {100 * (TARGET - share):.1f} points" if missed(method, mine, expert) else "met"
         line += f" That is {100 * share:.1f} % of the expert; the zoo's target (>= {TARGET:.0%}) is {verdict}."
     return line
 
