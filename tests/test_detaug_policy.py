@@ -173,3 +173,23 @@ def test_support_labels_are_uniform_within_each_transits_training_range(checkpoi
             assert len(np.unique(got_phi.round(6))) > 300
     policy.next_plan(obs)  # and they plan
     assert policy.diagnostics[-1].k == 400
+
+
+def test_support_scale_stretches_phi_beyond_the_training_support(checkpoint):
+    path, obs = checkpoint
+    bank = DetAugPolicy(checkpoint=path, k=4).labels
+    bank = bank.bank[bank.task == int(np.argmax(obs["task_id"]))]
+    for scale in (1.0, 2.0):
+        policy = DetAugPolicy(checkpoint=path, k=400, seed=0, support_scale=scale)
+        policy.reset(seed=0)
+        labels = policy.sample_labels(obs, 400)
+        for j in range(0, policy.label_dim, 2):
+            phi, got = np.hypot(bank[:, j], bank[:, j + 1]), np.hypot(labels[1:, j], labels[1:, j + 1])
+            if not (phi > 0).any():
+                continue
+            hi = phi[phi > 0].max()
+            assert got.max() <= scale * hi + 1e-5
+            assert (got > hi + 1e-5).any() == (scale > 1.0)  # beyond the training support only when stretched
+    with pytest.raises(ValueError, match="support_scale must be > 0"):
+        DetAugPolicy(checkpoint=path, support_scale=0.0)
+

@@ -66,6 +66,8 @@ class DetAugPolicy(FlowPolicy):
             the paper's selection).
         support: also score penetration into what the obstacle stands on (a pedestal or base), whose
             displacement moves the obstacle.
+        support_scale: ``labels="support"`` draws phi up to this multiple of the largest training phi (1: the
+            training support, the paper's).
         action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
 
     Every option, its type and its range are :class:`~detaug_gym.policies.options.DetAugOptions`.
@@ -76,11 +78,13 @@ class DetAugPolicy(FlowPolicy):
     def __init__(self, suite: str = "spatial", checkpoint: str | None = None, k: int = 32, latch: bool = False,
                  labels: str = "support", cost: str = "penetration", mode: str = "select",
                  guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,
-                 inflate: float = 0.015, tiebreak_margin: float = 0.0, support: bool = True, **options) -> None:
+                 inflate: float = 0.015, tiebreak_margin: float = 0.0, support: bool = True,
+                 support_scale: float = 1.0, **options) -> None:
         opts = DetAugOptions.from_kwargs(suite=suite, checkpoint=checkpoint, k=k, latch=latch, labels=labels,
                                          cost=cost, mode=mode, guidance_scale=guidance_scale,
                                          guidance_t_min=guidance_t_min, held_object=held_object, inflate=inflate,
-                                         tiebreak_margin=tiebreak_margin, support=support, **options)
+                                         tiebreak_margin=tiebreak_margin, support=support,
+                                         support_scale=support_scale, **options)
         ckpt = load_checkpoint(opts.checkpoint or zoo_dir("detaug", opts.suite))
         if not ckpt.network.config.dit.label_dim:
             raise ValueError(f"{ckpt.path} was trained without labels ({ckpt.method!r}); DetAug needs a "
@@ -92,7 +96,7 @@ class DetAugPolicy(FlowPolicy):
                                                                             opts.cost, opts.mode)
         self.guidance_scale, self.guidance_t_min = opts.guidance_scale, opts.guidance_t_min
         self.held_object, self.inflate, self.tiebreak_margin = opts.held_object, opts.inflate, opts.tiebreak_margin
-        self.support = opts.support
+        self.support, self.support_scale = opts.support, opts.support_scale
         self.diagnostics: list[ReplanDiagnostics] = []
         self._latched: np.ndarray | None = None
         self._rng = np.random.default_rng()
@@ -147,7 +151,8 @@ class DetAugPolicy(FlowPolicy):
         """(k, L) labels for the current task. ``labels="support"`` (default): the unbent label, then k - 1
         labels drawn uniformly within the task's training support, each transit (a pair of label entries,
         ``phi (cos theta, sin theta)``) on its own: ``phi`` and ``theta`` uniform between the smallest and
-        largest of that transit's bent training labels (a transit never bent in training stays unbent).
+        largest of that transit's bent training labels, ``phi``'s top stretched by ``support_scale`` (a transit
+        never bent in training stays unbent).
         ``"random"``: rows of the task's training labels (uniform, without replacement when there are enough);
         the bank holds one zero row per unaugmented demo, so this draws the unbent label far more often than
         any detour (37-68 % of the K on Spatial). ``"zero"``: zeros."""
@@ -169,7 +174,7 @@ class DetAugPolicy(FlowPolicy):
             bent = phi > 0.0
             if not bent.any():
                 continue
-            p = self._rng.uniform(phi[bent].min(), phi[bent].max(), k - 1)
+            p = self._rng.uniform(phi[bent].min(), phi[bent].max() * self.support_scale, k - 1)
             t = self._rng.uniform(theta[bent].min(), theta[bent].max(), k - 1)
             out[1:, j], out[1:, j + 1] = p * np.cos(t), p * np.sin(t)
         return out

@@ -183,11 +183,15 @@ class DetAugOptions(FlowOptions):
     obstacle inflated by this much more wins before the least bent (0: the least bent, the paper's rule)."""
     support: bool = True
     """Also score penetration into what the obstacle stands on (a pedestal or base; docs/detaug.md)."""
+    support_scale: float = 1.0
+    """labels=support draws each transit's phi up to this multiple of its largest training phi (> 0; 1 is the
+    paper's training support, more asks the network for wider detours than it was shown; docs/detaug.md)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _require(self.k >= 1, f"k must be >= 1, got {self.k}")
         _require(self.inflate >= 0.0, f"inflate must be >= 0 (metres), got {self.inflate}")
+        _require(self.support_scale > 0.0, f"support_scale must be > 0, got {self.support_scale}")
         _require(self.tiebreak_margin >= 0.0, f"tiebreak_margin must be >= 0 (metres), got {self.tiebreak_margin}")
         _check_guidance(self.guidance_scale, self.guidance_t_min)
 
