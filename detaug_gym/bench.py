@@ -518,7 +518,7 @@ def run(cfg: BenchConfig) -> str:
     text = write_report([r for r in read_records(log) if record_key(r)[1:] in wanted], out, notes=cfg.notes(),
                         beside_paper=cfg.scenarios == "official")
     print(text)
-    print(f"wrote {out}/table.md, table.csv, levels.csv, tasks.csv, eval_info.json, results.png")
+    print(f"wrote {out}/table.md, table.csv, levels.csv, tasks.csv, paired.csv, eval_info.json, results.png")
     return text
 
 

@@ -291,6 +291,52 @@ def collision_rows(records: list[dict], by: str) -> tuple[list[str], list[list[s
     return header, rows
 
 
+def sign_test(wins: int, losses: int) -> float:
+    """Exact two-sided sign test: the probability, under a fair coin over the ``wins + losses`` episodes where
+    two methods differ, of a split at least this uneven (ties, episodes where they agree, carry no weight)."""
+    n = wins + losses
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, k) for k in range(min(wins, losses) + 1)) / 2.0 ** n
+    return min(1.0, 2.0 * tail)
+
+
+def paired_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
+    """Every method against the method of highest mean Clean, on the episodes both ran (same suite, level, run
+    seed and episode index, hence the same init and obstacle): episodes shared, then per outcome (Clean,
+    Avoid) the episodes only the leader got right, only the other got right, and the sign test's p. A
+    difference of rates without this pairing hides how many episodes actually moved."""
+    by_method: dict[str, dict[tuple, dict]] = defaultdict(dict)
+    for r in records:
+        if r.get("level") != "Free":
+            by_method[r["method"]][(r["suite"], r["level"], r.get("run_seed", 0), r["episode"])] = r
+    if len(by_method) < 2:
+        return [], []
+
+    def clean(r: dict) -> bool:
+        return bool(r.get("success")) and not r.get("collision") and r.get("termination") != "error"
+
+    def avoid(r: dict) -> bool:
+        return not r.get("collision")
+
+    leader = max(sorted(by_method), key=lambda m: _mean([clean(r) for r in by_method[m].values()]))
+    header = ["Method", "Against", "Episodes", "Clean: leader only", "Clean: method only", "Clean p",
+              "Avoid: leader only", "Avoid: method only", "Avoid p"]
+    rows = []
+    for method in sorted(by_method):
+        if method == leader:
+            continue
+        shared = sorted(by_method[leader].keys() & by_method[method].keys())
+        row = [method, leader, str(len(shared))]
+        for outcome in (clean, avoid):
+            ahead = sum(outcome(by_method[leader][k]) and not outcome(by_method[method][k]) for k in shared)
+            behind = sum(outcome(by_method[method][k]) and not outcome(by_method[leader][k]) for k in shared)
+            p = sign_test(ahead, behind)
+            row += [str(ahead), str(behind), f"{p:.3f}" if p >= 0.001 else "<0.001"]
+        rows.append(row)
+    return header, rows
+
+
 def markdown(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -334,7 +380,7 @@ def eval_info(records: list[dict]) -> dict:
 
 
 def write_report(records: list[dict], out: Path, notes: tuple[str, ...] = (), beside_paper: bool = False) -> str:
-    """Write ``table.md``, ``table.csv``, ``levels.csv``, ``tasks.csv``, ``collisions_body.csv``,
+    """Write ``table.md``, ``table.csv``, ``levels.csv``, ``tasks.csv``, ``paired.csv``, ``collisions_body.csv``,
     ``collisions_phase.csv``, ``eval_info.json`` and ``results.png``
     into ``out``; return the Markdown. ``notes`` extend the caption (which scenarios, which cells were left
     out); ``beside_paper`` adds the paper's Table I numbers next to ours (meaningful on official scenarios)."""
@@ -344,6 +390,7 @@ def write_report(records: list[dict], out: Path, notes: tuple[str, ...] = (), be
     theader, trows = task_rows(records)
     bheader, brows = collision_rows(records, "body")
     phheader, phrows = collision_rows(records, "phase")
+    paheader, parows = paired_rows(records)
     text = (
         "## Table I (percent; averaged over levels within a suite)\n\n" + markdown(header, rows)
         + "\n\n" + " ".join((CAPTION, *notes)) + "\n\n"
@@ -354,12 +401,16 @@ def write_report(records: list[dict], out: Path, notes: tuple[str, ...] = (), be
                  + "\n\n")
     text += ("## Per level\n\n" + markdown(lheader, lrows) + "\n\n"
              "## Per task (successes / episodes)\n\n" + markdown(theader, trows) + "\n")
+    if parows:
+        text += ("\n## Paired against the leader (the same episodes; sign test over those that differ)\n\n"
+                 + markdown(paheader, parows) + "\n")
     if brows:
         text += ("\n## Collisions by body (what moved the obstacle first)\n\n" + markdown(bheader, brows) + "\n\n"
                  "## Collisions by phase\n\n" + markdown(phheader, phrows) + "\n")
     (out / "table.md").write_text(text)
     for name, (h, r) in {"table.csv": (header, rows), "levels.csv": (lheader, lrows),
-                         "tasks.csv": (theader, trows), "collisions_body.csv": (bheader, brows),
+                         "tasks.csv": (theader, trows), "paired.csv": (paheader, parows),
+                         "collisions_body.csv": (bheader, brows),
                          "collisions_phase.csv": (phheader, phrows)}.items():
         with open(out / name, "w", newline="") as f:
             csv.writer(f).writerows([h, *r])

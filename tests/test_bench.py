@@ -51,6 +51,8 @@ def test_bench_runs_resumes_and_reports(tmp_path):
     assert "random" in text and (tmp_path / "table.csv").exists() and (tmp_path / "results.png").exists()
     tasks = (tmp_path / "tasks.csv").read_text().splitlines()  # per-task counts; errors count as episodes
     assert tasks[0].startswith("Suite,Level,Task") and any("0/2 (0 coll., 2 err.)" in row for row in tasks[1:])
+    paired = (tmp_path / "paired.csv").read_text().splitlines()  # both methods on the same 2 episodes
+    assert paired[1].startswith("random,exploding,2,")  # a tie for the lead goes to the first name
     # rerunning resumes: nothing finished is repeated or lost; the errored episodes are retried
     bench.run(_args(tmp_path, ["random", "exploding"]))
     assert len(_lines(tmp_path)) == 6

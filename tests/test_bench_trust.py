@@ -15,7 +15,7 @@ import pytest
 import detaug_gym  # noqa: F401
 from detaug_gym import bench
 from detaug_gym.envs.suites import SUITES
-from detaug_gym.report import eval_info, repair_log, summarise, table_rows, wilson
+from detaug_gym.report import eval_info, paired_rows, repair_log, sign_test, summarise, table_rows, wilson
 
 
 def _config(out, **kw):
@@ -51,6 +51,26 @@ def test_wilson_interval_and_seed_spread():
                _record(False, run_seed=1)]
     header, rows = table_rows(summarise(records))
     assert dict(zip(header, rows[0]))["Spatial Total"] == "75.0 ± 35.4"  # seeds at 100 and 50
+
+
+def test_paired_rows_count_the_episodes_where_two_methods_differ_against_the_leader():
+    """Method a is clean in episodes 0-8, b in 0-1 and 9 (a collision in 2-8), c in none; b's episode 10 has
+    no partner in a and is left out of their pairing. a leads; against b: Clean 7 vs 1 (p = 0.070), Avoid 7 vs 0
+    (p = 0.016), the exact two-sided sign test."""
+    def rec(method, episode, clean, collision=False):
+        return _record(clean, collision) | {"method": method, "episode": episode}
+    records = [rec("a", i, i < 9) for i in range(10)]
+    records += [rec("b", i, i in (0, 1, 9), collision=2 <= i <= 8) for i in range(11)]
+    records += [rec("c", i, False) for i in range(10)]
+    header, rows = paired_rows(records)
+    by_method = {row[0]: dict(zip(header, row)) for row in rows}
+    assert set(by_method) == {"b", "c"} and by_method["b"]["Against"] == "a"
+    b = by_method["b"]
+    assert (b["Episodes"], b["Clean: leader only"], b["Clean: method only"], b["Clean p"]) == ("10", "7", "1", "0.070")
+    assert (b["Avoid: leader only"], b["Avoid: method only"], b["Avoid p"]) == ("7", "0", "0.016")
+    assert by_method["c"]["Clean: leader only"] == "9" and by_method["c"]["Avoid p"] == "1.000"
+    assert sign_test(0, 0) == 1.0 and sign_test(5, 5) == 1.0
+    assert paired_rows([rec("a", 0, True)]) == ([], [])
 
 
 def test_eval_info_follows_lerobots_schema():
