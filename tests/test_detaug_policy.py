@@ -193,3 +193,24 @@ def test_support_scale_stretches_phi_beyond_the_training_support(checkpoint):
     with pytest.raises(ValueError, match="support_scale must be > 0"):
         DetAugPolicy(checkpoint=path, support_scale=0.0)
 
+
+
+def test_wider_batches_are_drawn_only_while_no_candidate_is_free(checkpoint):
+    """Inside a box every plan penetrates: the policy draws its 2 wider batches (phi up to 2x and 3x the
+    training support) and chooses among all 3 x K; with every plan free it stops at the first batch."""
+    path, obs = checkpoint
+    policy = DetAugPolicy(checkpoint=path, k=8, seed=0, wider_batches=2)
+    scales = []
+    sample = policy.sample_labels
+    policy.sample_labels = lambda o, k, scale=None: scales.append(scale) or sample(o, k, scale)
+    policy.reset(seed=1)
+    plan = policy.next_plan(_with_obstacle_at_hand(obs))
+    diag = policy.diagnostics[-1]
+    assert scales == [None, 2.0, 3.0] and diag.k == 24 and diag.best_cost > 0
+    assert policy.score(torch.as_tensor(plan)[None], _with_obstacle_at_hand(obs))[0] == pytest.approx(
+        diag.best_cost, rel=1e-5)
+    scales.clear()
+    policy.next_plan(obs)  # no obstacle: every plan is free
+    assert scales == [None] and policy.diagnostics[-1].k == 8
+    with pytest.raises(ValueError, match="wider_batches must be >= 0"):
+        DetAugPolicy(checkpoint=path, wider_batches=-1)

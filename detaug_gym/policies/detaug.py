@@ -68,6 +68,9 @@ class DetAugPolicy(FlowPolicy):
             displacement moves the obstacle.
         support_scale: ``labels="support"`` draws phi up to this multiple of the largest training phi (1: the
             training support, the paper's).
+        wider_batches: when none of the K candidates is free, draw up to this many more batches of K, the
+            i-th (from 1) with phi up to ``(1 + i) * support_scale`` times the largest training phi, until one
+            holds a free plan; the choice is over every batch drawn (0: one batch, the paper's).
         action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
 
     Every option, its type and its range are :class:`~detaug_gym.policies.options.DetAugOptions`.
@@ -79,12 +82,12 @@ class DetAugPolicy(FlowPolicy):
                  labels: str = "support", cost: str = "penetration", mode: str = "select",
                  guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,
                  inflate: float = 0.015, tiebreak_margin: float = 0.0, support: bool = True,
-                 support_scale: float = 1.0, **options) -> None:
+                 support_scale: float = 1.0, wider_batches: int = 0, **options) -> None:
         opts = DetAugOptions.from_kwargs(suite=suite, checkpoint=checkpoint, k=k, latch=latch, labels=labels,
                                          cost=cost, mode=mode, guidance_scale=guidance_scale,
                                          guidance_t_min=guidance_t_min, held_object=held_object, inflate=inflate,
                                          tiebreak_margin=tiebreak_margin, support=support,
-                                         support_scale=support_scale, **options)
+                                         support_scale=support_scale, wider_batches=wider_batches, **options)
         ckpt = load_checkpoint(opts.checkpoint or zoo_dir("detaug", opts.suite))
         if not ckpt.network.config.dit.label_dim:
             raise ValueError(f"{ckpt.path} was trained without labels ({ckpt.method!r}); DetAug needs a "
@@ -96,7 +99,7 @@ class DetAugPolicy(FlowPolicy):
                                                                             opts.cost, opts.mode)
         self.guidance_scale, self.guidance_t_min = opts.guidance_scale, opts.guidance_t_min
         self.held_object, self.inflate, self.tiebreak_margin = opts.held_object, opts.inflate, opts.tiebreak_margin
-        self.support, self.support_scale = opts.support, opts.support_scale
+        self.support, self.support_scale, self.wider_batches = opts.support, opts.support_scale, opts.wider_batches
         self.diagnostics: list[ReplanDiagnostics] = []
         self._latched: np.ndarray | None = None
         self._rng = np.random.default_rng()
@@ -147,12 +150,12 @@ class DetAugPolicy(FlowPolicy):
         return {"executed_cost": cost, "executed_clearance": clearance}
 
     # ------------------------------------------------------------------ selection
-    def sample_labels(self, obs: Mapping[str, np.ndarray], k: int) -> np.ndarray:
+    def sample_labels(self, obs: Mapping[str, np.ndarray], k: int, scale: float | None = None) -> np.ndarray:
         """(k, L) labels for the current task. ``labels="support"`` (default): the unbent label, then k - 1
         labels drawn uniformly within the task's training support, each transit (a pair of label entries,
         ``phi (cos theta, sin theta)``) on its own: ``phi`` and ``theta`` uniform between the smallest and
-        largest of that transit's bent training labels, ``phi``'s top stretched by ``support_scale`` (a transit
-        never bent in training stays unbent).
+        largest of that transit's bent training labels, ``phi``'s top stretched by ``scale`` (default
+        ``support_scale``; a transit never bent in training stays unbent).
         ``"random"``: rows of the task's training labels (uniform, without replacement when there are enough);
         the bank holds one zero row per unaugmented demo, so this draws the unbent label far more often than
         any detour (37-68 % of the K on Spatial). ``"zero"``: zeros."""
@@ -163,18 +166,18 @@ class DetAugPolicy(FlowPolicy):
         rows = np.flatnonzero(tasks == task)
         rows = rows if len(rows) else np.arange(len(bank))
         if self.label_source == "support":
-            return self._support_labels(bank[rows], k)
+            return self._support_labels(bank[rows], k, self.support_scale if scale is None else scale)
         pick = self._rng.choice(rows, size=k, replace=len(rows) < k)
         return bank[pick].astype(np.float32)
 
-    def _support_labels(self, bank: np.ndarray, k: int) -> np.ndarray:
+    def _support_labels(self, bank: np.ndarray, k: int, scale: float) -> np.ndarray:
         out = np.zeros((k, self.label_dim), np.float32)
         for j in range(0, self.label_dim, 2):
             phi, theta = np.hypot(bank[:, j], bank[:, j + 1]), np.arctan2(bank[:, j + 1], bank[:, j])
             bent = phi > 0.0
             if not bent.any():
                 continue
-            p = self._rng.uniform(phi[bent].min(), phi[bent].max() * self.support_scale, k - 1)
+            p = self._rng.uniform(phi[bent].min(), phi[bent].max() * scale, k - 1)
             t = self._rng.uniform(theta[bent].min(), theta[bent].max(), k - 1)
             out[1:, j], out[1:, j + 1] = p * np.cos(t), p * np.sin(t)
         return out
@@ -188,6 +191,9 @@ class DetAugPolicy(FlowPolicy):
         guidance = self._guidance(obs) if self.mode in ("null_guidance", "guided_select") else None
         plans = self.plan(obs, labels, num_samples=k, guidance=guidance)
         costs = self.score(plans, obs)
+        if labels is not None:
+            labels, plans, costs = self._widen(obs, labels, plans, costs, guidance)
+            k = len(labels)
         norms = np.zeros(k) if labels is None else np.linalg.norm(labels, axis=1)
         rounded = np.round(costs, 6)
         keys = [norms, rounded]  # lowest cost, then least bent
@@ -203,6 +209,18 @@ class DetAugPolicy(FlowPolicy):
         if self.latch and labels is not None:
             self._latched = chosen
         return plans[best].numpy()
+
+    def _widen(self, obs, labels: np.ndarray, plans: torch.Tensor, costs: np.ndarray, guidance):
+        """``wider_batches``: while no candidate is free, another batch of K with a wider phi range, appended.
+        Returns labels (N, L), plans (N, H, D) and costs (N,) over every batch drawn (N = K x batches)."""
+        for i in range(1, self.wider_batches + 1):
+            if costs.min() <= 0.0:
+                break
+            more = self.sample_labels(obs, self.k, scale=(1 + i) * self.support_scale)
+            more_plans = self.plan(obs, more, num_samples=self.k, guidance=guidance)
+            labels, plans = np.concatenate([labels, more]), torch.cat([plans, more_plans])
+            costs = np.concatenate([costs, self.score(more_plans, obs)])
+        return labels, plans, costs
 
     def score(self, plans: torch.Tensor, obs: Mapping[str, np.ndarray], inflate: float | None = None) -> np.ndarray:
         """(K,) collision cost of plans (K, H, D) against the observed obstacle inflated by ``inflate`` (default

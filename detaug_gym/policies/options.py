@@ -186,12 +186,16 @@ class DetAugOptions(FlowOptions):
     support_scale: float = 1.0
     """labels=support draws each transit's phi up to this multiple of its largest training phi (> 0; 1 is the
     paper's training support, more asks the network for wider detours than it was shown; docs/detaug.md)."""
+    wider_batches: int = 0
+    """When none of the K candidates is free, up to this many more batches of K (>= 0), the i-th with phi up to
+    (1 + i) x support_scale x the largest training phi, until one holds a free plan (0: the paper's one batch)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _require(self.k >= 1, f"k must be >= 1, got {self.k}")
         _require(self.inflate >= 0.0, f"inflate must be >= 0 (metres), got {self.inflate}")
         _require(self.support_scale > 0.0, f"support_scale must be > 0, got {self.support_scale}")
+        _require(self.wider_batches >= 0, f"wider_batches must be >= 0, got {self.wider_batches}")
         _require(self.tiebreak_margin >= 0.0, f"tiebreak_margin must be >= 0 (metres), got {self.tiebreak_margin}")
         _check_guidance(self.guidance_scale, self.guidance_t_min)
 
