@@ -13,6 +13,10 @@ bench half of the obstacle collisions came without any robot contact, from the c
 inflated by ``inflate`` (1.5 cm) before penetration is scored, the measured error of the scorer's geometry
 (docs/detaug.md). ``held_object=False, inflate=0`` is the paper's score.
 
+When none of the K plans is free, up to ``wider_batches`` (2) more batches are drawn with labels bent up to 2x
+and 3x the training support, and the choice is over all of them; a replan with a free plan among the first K
+is the paper's. ``wider_batches=0`` is the paper's selection (docs/detaug.md, "Wider batches").
+
 Options reproduce the paper's ablations: ``k``, ``latch`` (keep the first choice for the episode),
 ``labels="zero"`` (K samples with the unbent label), ``cost="clearance"``, and the selection-vs-guidance
 variants ``mode="null_guidance"`` (null token + guidance, no selection), ``"guided_select"`` (guidance and
@@ -70,7 +74,7 @@ class DetAugPolicy(FlowPolicy):
             training support, the paper's).
         wider_batches: when none of the K candidates is free, draw up to this many more batches of K, the
             i-th (from 1) with phi up to ``(1 + i) * support_scale`` times the largest training phi, until one
-            holds a free plan; the choice is over every batch drawn (0: one batch, the paper's).
+            holds a free plan; the choice is over every batch drawn (0: one batch, the paper's; default 2).
         action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
 
     Every option, its type and its range are :class:`~detaug_gym.policies.options.DetAugOptions`.
@@ -82,7 +86,7 @@ class DetAugPolicy(FlowPolicy):
                  labels: str = "support", cost: str = "penetration", mode: str = "select",
                  guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,
                  inflate: float = 0.015, tiebreak_margin: float = 0.0, support: bool = True,
-                 support_scale: float = 1.0, wider_batches: int = 0, **options) -> None:
+                 support_scale: float = 1.0, wider_batches: int = 2, **options) -> None:
         opts = DetAugOptions.from_kwargs(suite=suite, checkpoint=checkpoint, k=k, latch=latch, labels=labels,
                                          cost=cost, mode=mode, guidance_scale=guidance_scale,
                                          guidance_t_min=guidance_t_min, held_object=held_object, inflate=inflate,
