@@ -188,9 +188,9 @@ class DetAugOptions(FlowOptions):
     paper's training support, more asks the network for wider detours than it was shown; docs/detaug.md)."""
     wider_batches: int = 2
     """When none of the K candidates is free, up to this many more batches of K (>= 0), the i-th with phi up to
-    (1 + i) x support_scale x the largest training phi, until one holds a free plan (0: the paper's one batch;
-    2, the default, avoided 74 Spatial episodes of 320 that 0 hit and hit 11 that 0 avoided, at equal Clean;
-    docs/detaug.md)."""
+    (1 + i) x support_scale x the largest training phi (labels=support; random and zero draw as they do), until
+    one holds a free plan (0: the paper's one batch; 2, the default, avoided 74 Spatial episodes of 320 that 0
+    hit and hit 11 that 0 avoided, at equal Clean; docs/detaug.md)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
