@@ -145,9 +145,24 @@ class Cell:
         return float(np.std([c.rate(metric) for c in self.per_seed.values()], ddof=1))
 
 
+def succeeded(record: dict) -> bool:
+    """The task done (an errored episode never counts as done)."""
+    return bool(record.get("success")) and record.get("termination") != "error"
+
+
+def clean(record: dict) -> bool:
+    """The task done without a collision."""
+    return succeeded(record) and not record.get("collision")
+
+
+def avoided(record: dict) -> bool:
+    """The obstacle never moved."""
+    return not record.get("collision")
+
+
 def _count(records: list[dict]) -> Cell:
     n = len(records)
-    success = [bool(r.get("success")) and r.get("termination") != "error" for r in records]
+    success = [succeeded(r) for r in records]
     collision = [bool(r.get("collision")) for r in records]
     return Cell(
         n=n,
@@ -312,13 +327,6 @@ def paired_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
             by_method[r["method"]][(r["suite"], r["level"], r.get("run_seed", 0), r["episode"])] = r
     if len(by_method) < 2:
         return [], []
-
-    def clean(r: dict) -> bool:
-        return bool(r.get("success")) and not r.get("collision") and r.get("termination") != "error"
-
-    def avoid(r: dict) -> bool:
-        return not r.get("collision")
-
     leader = max(sorted(by_method), key=lambda m: _mean([clean(r) for r in by_method[m].values()]))
     header = ["Method", "Against", "Episodes", "Clean: leader only", "Clean: method only", "Clean p",
               "Avoid: leader only", "Avoid: method only", "Avoid p"]
@@ -328,7 +336,7 @@ def paired_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
             continue
         shared = sorted(by_method[leader].keys() & by_method[method].keys())
         row = [method, leader, str(len(shared))]
-        for outcome in (clean, avoid):
+        for outcome in (clean, avoided):
             ahead = sum(outcome(by_method[leader][k]) and not outcome(by_method[method][k]) for k in shared)
             behind = sum(outcome(by_method[method][k]) and not outcome(by_method[leader][k]) for k in shared)
             p = sign_test(ahead, behind)
