@@ -214,3 +214,27 @@ def test_wider_batches_are_drawn_only_while_no_candidate_is_free(checkpoint):
     assert scales == [None] and policy.diagnostics[-1].k == 8
     with pytest.raises(ValueError, match="wider_batches must be >= 0"):
         DetAugPolicy(checkpoint=path, wider_batches=-1)
+
+
+def test_commit_keeps_the_previous_label_while_it_is_as_good_as_the_best(checkpoint):
+    """With ``commit`` the previous replan's (bent) label is a candidate and wins a tie of free plans over the
+    least bent; without it the fresh draw's least bent (the unbent label) wins; in penetration the lowest cost
+    still comes first."""
+    path, obs = checkpoint
+    bent = DetAugPolicy(checkpoint=path, k=8, seed=0).sample_labels(obs, 8)[1]
+    assert np.linalg.norm(bent) > 0
+    for commit, expected in ((True, bent), (False, np.zeros_like(bent))):
+        policy = DetAugPolicy(checkpoint=path, k=8, seed=0, commit=commit)
+        policy.reset(seed=1)
+        policy.next_plan(obs)  # no obstacle: every plan is free, the unbent label wins
+        assert np.allclose(policy.diagnostics[-1].label, 0.0)
+        policy.diagnostics[-1].label = bent  # as if a detour had been chosen
+        policy.next_plan(obs)
+        assert np.allclose(policy.diagnostics[-1].label, expected)
+    policy.diagnostics[-1].label = bent
+    policy.commit = True
+    plan = policy.next_plan(_with_obstacle_at_hand(obs))
+    diag = policy.diagnostics[-1]
+    assert 0 < diag.best_cost <= diag.median_cost
+    assert policy.score(torch.as_tensor(plan)[None], _with_obstacle_at_hand(obs))[0] == \
+        pytest.approx(diag.best_cost, rel=1e-5)

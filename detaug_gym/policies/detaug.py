@@ -75,6 +75,8 @@ class DetAugPolicy(FlowPolicy):
         wider_batches: when none of the K candidates is free, draw up to this many more batches of K, the
             i-th (from 1) with phi up to ``(1 + i) * support_scale`` times the largest training phi, until one
             holds a free plan; the choice is over every batch drawn (0: one batch, the paper's; default 2).
+        commit: from the second replan on, the previous label is a candidate and wins ties of lowest cost
+            before the least bent, so a detour is kept while it stays free (false: the paper's fresh draw).
         action_steps, flow_steps, seed: see :class:`~detaug_gym.models.policy.FlowPolicy`.
 
     Every option, its type and its range are :class:`~detaug_gym.policies.options.DetAugOptions`.
@@ -86,12 +88,13 @@ class DetAugPolicy(FlowPolicy):
                  labels: str = "support", cost: str = "penetration", mode: str = "select",
                  guidance_scale: float = 3.0, guidance_t_min: float = 0.8, held_object: bool = True,
                  inflate: float = 0.015, tiebreak_margin: float = 0.0, support: bool = True,
-                 support_scale: float = 1.0, wider_batches: int = 2, **options) -> None:
+                 support_scale: float = 1.0, wider_batches: int = 2, commit: bool = False, **options) -> None:
         opts = DetAugOptions.from_kwargs(suite=suite, checkpoint=checkpoint, k=k, latch=latch, labels=labels,
                                          cost=cost, mode=mode, guidance_scale=guidance_scale,
                                          guidance_t_min=guidance_t_min, held_object=held_object, inflate=inflate,
                                          tiebreak_margin=tiebreak_margin, support=support,
-                                         support_scale=support_scale, wider_batches=wider_batches, **options)
+                                         support_scale=support_scale, wider_batches=wider_batches, commit=commit,
+                                         **options)
         ckpt = load_checkpoint(opts.checkpoint or zoo_dir("detaug", opts.suite))
         if not ckpt.network.config.dit.label_dim:
             raise ValueError(f"{ckpt.path} was trained without labels ({ckpt.method!r}); DetAug needs a "
@@ -104,6 +107,7 @@ class DetAugPolicy(FlowPolicy):
         self.guidance_scale, self.guidance_t_min = opts.guidance_scale, opts.guidance_t_min
         self.held_object, self.inflate, self.tiebreak_margin = opts.held_object, opts.inflate, opts.tiebreak_margin
         self.support, self.support_scale, self.wider_batches = opts.support, opts.support_scale, opts.wider_batches
+        self.commit = opts.commit
         self.diagnostics: list[ReplanDiagnostics] = []
         self._latched: np.ndarray | None = None
         self._rng = np.random.default_rng()
@@ -192,6 +196,9 @@ class DetAugPolicy(FlowPolicy):
         use_labels = self.mode in ("select", "guided_select")
         k = 1 if self.mode == "null_guidance" else self.k
         labels = self.sample_labels(obs, k) if use_labels else None
+        kept = labels is not None and self.commit and bool(self.diagnostics) and k > 1
+        if kept:
+            labels[-1] = self.diagnostics[-1].label  # the previous choice stands as the last candidate
         guidance = self._guidance(obs) if self.mode in ("null_guidance", "guided_select") else None
         plans = self.plan(obs, labels, num_samples=k, guidance=guidance)
         costs = self.score(plans, obs)
@@ -201,6 +208,8 @@ class DetAugPolicy(FlowPolicy):
         norms = np.zeros(k) if labels is None else np.linalg.norm(labels, axis=1)
         rounded = np.round(costs, 6)
         keys = [norms, rounded]  # lowest cost, then least bent
+        if kept:
+            keys.insert(1, np.arange(k) != self.k - 1)  # lowest cost, then the previous label, then least bent
         tied = rounded == rounded.min()
         if self.tiebreak_margin > 0.0 and has_obstacle(obs) and tied.sum() > 1:
             wide = np.full(k, np.inf)

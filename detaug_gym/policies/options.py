@@ -192,6 +192,12 @@ class DetAugOptions(FlowOptions):
     one holds a free plan (0: the paper's one batch; 2, the default, avoided 74 Spatial episodes of 320 that 0
     hit and hit 11 that 0 avoided, at equal Clean; docs/detaug.md)."""
 
+    commit: bool = False
+    """From the second replan on, the previous replan's label is one of the candidates (in place of a drawn one),
+    and among the plans of lowest cost it wins before the least bent: a detour is kept while it stays as good,
+    as every step of an augmented demo keeps its one label (false: the paper's fresh draw; ``latch`` keeps the
+    first label even when it collides)."""
+
     def __post_init__(self) -> None:
         super().__post_init__()
         _require(self.k >= 1, f"k must be >= 1, got {self.k}")
