@@ -2,9 +2,11 @@
 
     python benchmarks/goal_progress.py --suite long --method base --episodes 40
     python benchmarks/goal_progress.py --suite goal --task 3 --max-steps 600 --method base:checkpoint=PATH
+    python benchmarks/goal_progress.py --suite spatial --level L1 --task 3 --method detaug --episodes 20
 
 A task of LIBERO's is solved when every predicate of its BDDL goal holds (Long's have two: one per pick-place).
-A bench record says only solved or not; this runs ``--episodes`` Free episodes (tasks in turn, episode ``i`` on
+A bench record says only solved or not; this runs ``--episodes`` Free episodes (``--level L1`` or ``L2``: obstacle
+episodes; ``--layout``: a Free env's object layout) (tasks in turn, episode ``i`` on
 task ``i % tasks``, or every one on ``--task``, with reset seed ``seed + i``) and reads every goal predicate after
 each step, so a failure is placed: no predicate ever held (the first pick-place failed), some but not all (a later
 one failed), or all.
@@ -15,7 +17,8 @@ the episodes where no predicate ever held, how many lifted the first object (tra
 ``LIFTED`` (a grasp that worked, so the place failed) and how many never did (the grasp failed).
 ``--max-steps`` replaces the suite's step limit: a task that the policy solves late, past the limit, is slow;
 one it does not solve with twice the limit is stuck. ``--out``'s lines also hold each tracked object's highest
-rise (``lift``) and largest horizontal displacement (``moved``; Goal's drawer region moves as the drawer opens).
+rise (``lift``) and largest horizontal displacement (``moved``; Goal's drawer region moves as the drawer opens),
+whether the obstacle was hit (``collision``; false on Free) and the least robot-obstacle distance (``clearance``, m).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from tqdm import tqdm
 
 import detaug_gym  # noqa: F401  (registers the envs)
 from detaug_gym.bench import check_methods, parse_method
+from detaug_gym.envs.safe_libero import LAYOUTS
 from detaug_gym.envs.suites import SUITES
 from detaug_gym.policies.base import make_policy
 from detaug_gym.report import markdown
@@ -50,11 +54,13 @@ class GoalPredicates(Hook):
         self._start = np.asarray(obs["object_poses"])[:, :3].copy()  # (N, 3) tracked objects' positions
         self.lift = np.zeros(len(self._start))  # (N,) highest rise of each tracked object (m)
         self.moved = np.zeros(len(self._start))  # (N,) largest horizontal displacement (m): a drawer pulled open
+        self.clearance = float("inf")  # least robot-obstacle distance (m; inf without an obstacle)
 
     def on_step(self, step: Step) -> None:
         position = np.asarray(step.next_obs["object_poses"])[:, :3]
         self.lift = np.maximum(self.lift, position[:, 2] - self._start[:, 2])
         self.moved = np.maximum(self.moved, np.linalg.norm(position[:, :2] - self._start[:, :2], axis=1))
+        self.clearance = min(self.clearance, float(step.info["min_clearance"]))
         self.final = list(self._scene.goals_fn())  # the env's own sub-goal flags (its info["goals_met"] counts them)
         for i, held in enumerate(self.final):
             if held and self.first[i] is None:
@@ -71,6 +77,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--task", type=int, help="run every episode on this task index (default: tasks in turn)")
     parser.add_argument("--max-steps", type=int, help="step limit (default: the suite's)")
+    parser.add_argument("--level", default="Free", help="Free (default), L1 or L2 (current scenarios)")
+    parser.add_argument("--layout", choices=LAYOUTS, help="the Free env's object layout (default: the env's, LIBERO's)")
     parser.add_argument("--out", help="also write one JSON line per episode here")
     args = parser.parse_args()
     if args.suite not in libero:
@@ -80,9 +88,18 @@ def main() -> None:
         parser.error(f"--task {args.task}: {args.suite} has tasks 0..{tasks - 1}")
     if args.max_steps is not None and args.max_steps < 1:
         parser.error(f"--max-steps {args.max_steps}: give a positive step count")
+    try:
+        env_id = SUITES[args.suite].env_id(args.level)
+    except ValueError as err:
+        parser.error(f"--level {args.level!r}: {err}")
+    if args.layout is not None and env_id != SUITES[args.suite].env_id("Free"):
+        parser.error(f"--layout is a Free env's option (got --level {args.level}); the obstacle levels use "
+                     "SafeLIBERO's layouts")
     check_methods([args.method], [args.suite])  # the bench's own errors for an unknown method or bad options
-    limit = {} if args.max_steps is None else {"max_episode_steps": args.max_steps}
-    env = gym.make(SUITES[args.suite].env_id("Free"), **limit)
+    kwargs = {} if args.max_steps is None else {"max_episode_steps": args.max_steps}
+    if args.layout is not None:
+        kwargs["layout"] = args.layout
+    env = gym.make(env_id, **kwargs)
     name, options = parse_method(args.method)
     policy = make_policy(name, suite=args.suite, **options)
     rows: dict[int, list[GoalPredicates]] = defaultdict(list)
@@ -96,9 +113,14 @@ def main() -> None:
                 out.write(json.dumps({"task": task, "seed": args.seed + episode, "goals": hook.goals,
                                       "first": hook.first, "final": hook.final, "steps": result.steps,
                                       "lift": hook.lift.round(4).tolist(),
-                                      "moved": hook.moved.round(4).tolist()}) + "\n")
+                                      "moved": hook.moved.round(4).tolist(),
+                                      "collision": bool(result.info["collision"]),
+                                      "clearance": None if np.isinf(hook.clearance) else round(hook.clearance, 4)})
+                          + "\n")
                 out.flush()
-    print(f"\n{args.method} on {args.suite} Free, {args.episodes} episodes (reset seeds {args.seed}..)\n")
+    layout = f" ({args.layout} layout)" if args.layout else ""
+    print(f"\n{args.method} on {env_id}{layout}, {args.episodes} episodes "
+          f"(reset seeds {args.seed}..)\n")
     header = ["task", "goal", "episodes", "all held", "some", "none (first object lifted / not)",
               "mean first step per predicate", "held at the end"]
     print(markdown(header, [_task_row(task, rows[task]) for task in sorted(rows)]))
