@@ -38,7 +38,7 @@ from detaug_gym.envs.safe_libero import LAYOUTS
 from detaug_gym.envs.suites import SUITES
 from detaug_gym.policies.base import make_policy
 from detaug_gym.report import markdown
-from detaug_gym.rollout import Hook, Step, rollout
+from detaug_gym.rollout import Hook, ObstacleMetrics, Step, rollout
 
 LIFTED = 0.05  # m: an object risen this far was grasped and carried
 
@@ -54,13 +54,11 @@ class GoalPredicates(Hook):
         self._start = np.asarray(obs["object_poses"])[:, :3].copy()  # (N, 3) tracked objects' positions
         self.lift = np.zeros(len(self._start))  # (N,) highest rise of each tracked object (m)
         self.moved = np.zeros(len(self._start))  # (N,) largest horizontal displacement (m): a drawer pulled open
-        self.clearance = float("inf")  # least robot-obstacle distance (m; inf without an obstacle)
 
     def on_step(self, step: Step) -> None:
         position = np.asarray(step.next_obs["object_poses"])[:, :3]
         self.lift = np.maximum(self.lift, position[:, 2] - self._start[:, 2])
         self.moved = np.maximum(self.moved, np.linalg.norm(position[:, :2] - self._start[:, :2], axis=1))
-        self.clearance = min(self.clearance, float(step.info["min_clearance"]))
         self.final = list(self._scene.goals_fn())  # the env's own sub-goal flags (its info["goals_met"] counts them)
         for i, held in enumerate(self.final):
             if held and self.first[i] is None:
@@ -106,17 +104,17 @@ def main() -> None:
     with open(args.out, "w") if args.out else nullcontext() as out:
         for episode in tqdm(range(args.episodes), desc=f"{args.method} {args.suite}", unit="ep"):
             task = episode % tasks if args.task is None else args.task
-            hook = GoalPredicates()
-            result = rollout(env, policy, seed=args.seed + episode, options={"task": task}, hooks=[hook])
+            hook, obstacle = GoalPredicates(), ObstacleMetrics()
+            result = rollout(env, policy, seed=args.seed + episode, options={"task": task}, hooks=[hook, obstacle])
             rows[task].append(hook)
             if out:  # one line per episode as it ends
+                clearance = None if np.isinf(obstacle.clearance) else round(obstacle.clearance, 4)
                 out.write(json.dumps({"task": task, "seed": args.seed + episode, "goals": hook.goals,
                                       "first": hook.first, "final": hook.final, "steps": result.steps,
                                       "lift": hook.lift.round(4).tolist(),
                                       "moved": hook.moved.round(4).tolist(),
-                                      "collision": bool(result.info["collision"]),
-                                      "clearance": None if np.isinf(hook.clearance) else round(hook.clearance, 4)})
-                          + "\n")
+                                      "collision": obstacle.collision,
+                                      "clearance": clearance}) + "\n")
                 out.flush()
     layout = f" ({args.layout} layout)" if args.layout else ""
     print(f"\n{args.method} on {env_id}{layout}, {args.episodes} episodes "
