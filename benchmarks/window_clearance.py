@@ -104,11 +104,10 @@ def main() -> None:
     if bad:
         parser.error(f"--levels {' '.join(bad)}: valid are L1 and L2 (the obstacle levels)")
     suite = SUITES[args.suite]
-    tasks = len(suite.tasks)
     rows = []
     with open(args.out, "w") if args.out else nullcontext() as out:
         for level in args.levels:
-            official = args.scenarios == "official"
+            tasks, official = len(suite.tasks_for(level)), args.scenarios == "official"
             env = (gym.make(suite.env_id(level, OFFICIAL_ID_VERSION), scenarios="official") if official
                    else gym.make(suite.env_id(level)))
             cells: dict[int, list[dict]] = defaultdict(list)
