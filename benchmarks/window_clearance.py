@@ -104,6 +104,7 @@ def main() -> None:
     if bad:
         parser.error(f"--levels {' '.join(bad)}: valid are L1 and L2 (the obstacle levels)")
     suite = SUITES[args.suite]
+    policy = make_policy("scripted", suite=args.suite)  # rollout resets it with each episode's seed
     rows = []
     with open(args.out, "w") if args.out else nullcontext() as out:
         for level in args.levels:
@@ -113,7 +114,6 @@ def main() -> None:
             cells: dict[int, list[dict]] = defaultdict(list)
             for i in tqdm(range(args.episodes * tasks), desc=f"expert {args.suite} {level}", unit="ep"):
                 task, hook = i % tasks, FrameClearance()
-                policy = make_policy("scripted", suite=args.suite)
                 options = {"task": task, **({"episode": i // tasks} if official else {})}
                 result = rollout(env, policy, seed=args.seed + i, options=options, hooks=[hook])
                 record = {"level": level, "task": task, "seed": args.seed + i,
