@@ -223,10 +223,13 @@ def data_files(cfg: TrainConfig) -> list[str]:
 
 
 def load_data(cfg: TrainConfig, init=None) -> WindowDataset:
+    """The training windows of ``--data``, observed through ``init``'s keys when fine-tuning (the network
+    reads what it was trained on), else :data:`OBS_KEYS`."""
+    keys = init.obs_keys if init is not None else OBS_KEYS
     demos = []
     for path in data_files(cfg):
         try:
-            loaded = read_demos(path, OBS_KEYS)
+            loaded = read_demos(path, keys)
         except (ValueError, OSError, DatasetError) as err:
             raise SystemExit(f"error: --data {path}: {err}") from None
         for demo in loaded:
@@ -235,7 +238,7 @@ def load_data(cfg: TrainConfig, init=None) -> WindowDataset:
                 raise SystemExit(f"error: --data {path}: data/{demo.name} has non-finite values in {', '.join(bad)}; "
                                  "drop or re-collect that demo")
         demos += loaded
-    return WindowDataset(demos, cfg.horizon, PlanLayout(), OBS_KEYS, use_labels=cfg.method == "detaug",
+    return WindowDataset(demos, cfg.horizon, PlanLayout(), keys, use_labels=cfg.method == "detaug",
                          n_points=cfg.n_points if cfg.method == "demogen" else 0,
                          normalizers=init.normalizers if init is not None else None, seed=cfg.seed,
                          zero_label_weight=cfg.zero_label_weight)
@@ -338,7 +341,7 @@ class Run:
                    "parameters": self.network.num_parameters(), "finished": final}
         ema = {k: v.cpu() for k, v in self.ema.state.items()}
         save_checkpoint(folder, method=cfg.method, network=self.network, ema_state=ema,
-                        layout=self.data.layout, obs_keys=OBS_KEYS, normalizers=self.data.normalizers,
+                        layout=self.data.layout, obs_keys=self.data.obs_keys, normalizers=self.data.normalizers,
                         labels=LabelSupport(*self.data.label_bank()),
                         n_points=cfg.n_points if cfg.method == "demogen" else 0, action_steps=cfg.action_steps,
                         extra_config={"train": dataclasses.asdict(cfg), "summary": summary,

@@ -214,6 +214,17 @@ def test_object_rel_pos_is_derived_from_stored_keys_and_masked():
         observation_vector({k: v for k, v in obs.items() if k != "eef_pos"}, ("object_rel_pos",))
 
 
+def test_object_pair_rel_pos_gives_every_pair_and_masks_absent_slots():
+    poses = np.zeros((1, 3, 7))
+    poses[0, :, :3] = [[0.1, 0.0, 0.9], [0.3, -0.2, 0.9], [9.0, 9.0, 9.0]]
+    obs = {"object_poses": poses, "object_mask": np.array([[1.0, 1.0, 0.0]])}
+    vec = observation_vector(obs, ("object_pair_rel_pos",))
+    # pairs (0, 1), (0, 2), (1, 2): slot 2 is absent, so its pairs are zero
+    assert np.allclose(vec, [[0.2, -0.2, 0.0, 0, 0, 0, 0, 0, 0]])
+    with pytest.raises(KeyError, match="object_mask"):
+        observation_vector({"object_poses": poses}, ("object_pair_rel_pos",))
+
+
 def test_shift_plan_pads_like_training_windows():
     plan = torch.arange(2 * 5 * 9, dtype=torch.float32).reshape(2, 5, 9)
     shifted = shift_plan(plan, 2)

@@ -229,6 +229,23 @@ def test_adapter_only_finetune_starts_from_base_and_freezes_backbone(tmp_path):
     assert any(not torch.equal(before[k], after[k]) for k in before if k in adapter)
 
 
+def test_finetune_observes_through_the_keys_its_base_was_trained_on(tmp_path, monkeypatch):
+    """A base trained before a derived key joined OBS_KEYS stays fine-tunable: its fine-tunes read its keys."""
+    base_data = write_synthetic_demos(tmp_path / "base.hdf5", n_demos=3, length=16)
+    aug_data = write_synthetic_demos(tmp_path / "aug.hdf5", n_demos=3, length=16, label_dim=4, seed=1)
+    common = dict(TINY, d_model=32, batch_size=16)
+    older = tuple(k for k in train_module.OBS_KEYS if k != "object_pair_rel_pos")
+    with monkeypatch.context() as patch:
+        patch.setattr(train_module, "OBS_KEYS", older)
+        train(TrainConfig(method="base", data=str(base_data), out=str(tmp_path / "base"), steps=3, **common))
+    assert load_checkpoint(tmp_path / "base").obs_keys == older
+    train(TrainConfig(method="detaug", data=str(aug_data), out=str(tmp_path / "tuned"), steps=3,
+                      init_from=str(tmp_path / "base"), **common))
+    tuned = load(tmp_path / "tuned", seed=0)
+    assert tuned.checkpoint.obs_keys == older
+    assert tuned.act(single_obs(read_demos(aug_data)[0], 0)).shape == (7,)
+
+
 def test_missing_or_corrupt_checkpoint_names_the_train_command(tmp_path, detaug_run):
     with pytest.raises(CheckpointError, match=r"python -m detaug_gym\.train --method base .*--out .*base"):
         load(tmp_path / "policies" / "base" / "spatial")

@@ -10,10 +10,13 @@ Cartesian view of the motion it commands in OSC deltas. The plan at time ``t`` i
 a_t..a_{t+H-1}]``: its first state is the *current* state, which the sampler inpaints.
 
 **Observation conditioning** (vector ``C``): robot joint positions and velocities, gripper qpos, eef pose,
-object poses, object mask, task id and the derived ``object_rel_pos`` (S, 3): each tracked object's position
-minus the end effector's (zero where the mask is 0). The network could subtract the two absolute positions
-itself, but grasping a bowl's rim needs ~1 cm precision and the relative vector hands it over directly
-(see ``docs/models.md`` for the measured effect). Quaternions (xyzw) become the first two columns of their rotation
+object poses, object mask, task id and two derived relative positions: ``object_rel_pos`` (S, 3), each
+tracked object's position minus the end effector's, and ``object_pair_rel_pos`` (S(S-1)/2, 3), object ``j``'s
+position minus object ``i``'s for every pair ``i < j`` of tracked slots (zero where a mask is 0). The tracked
+objects come in pick-place order (object, its target, ...), so the pairs include every carried object's offset
+from where it goes. The network could subtract absolute positions itself, but grasping a bowl's rim or setting
+it down on a plate needs ~1 cm precision and the relative vectors hand it over directly (see ``docs/models.md``
+for the measured effect). Quaternions (xyzw) become the first two columns of their rotation
 matrix: continuous and sign-free (a top-down gripper has ``w ~ 0``, where a canonical-sign rule would flip).
 The obstacle keys are never part of it; only the ``demogen`` method reads ``obstacle_points``, through its
 point-cloud encoder.
@@ -44,8 +47,9 @@ from detaug_gym.rotations import quat_xyzw_to_mat
 
 PLAN_STATE_KEYS = ("robot_joint_pos", "gripper_qpos", "eef_pos")
 OBS_KEYS = ("robot_joint_pos", "robot_joint_vel", "gripper_qpos", "eef_pos", "eef_quat",
-            "object_poses", "object_mask", "task_id", "object_rel_pos")
-DERIVED_KEYS = {"object_rel_pos": ("object_poses", "eef_pos", "object_mask")}  # computed, not stored
+            "object_poses", "object_mask", "task_id", "object_rel_pos", "object_pair_rel_pos")
+DERIVED_KEYS = {"object_rel_pos": ("object_poses", "eef_pos", "object_mask"),  # computed, not stored
+                "object_pair_rel_pos": ("object_poses", "object_mask")}
 
 
 # ---------------------------------------------------------------------------------------------- features
@@ -72,6 +76,17 @@ def object_rel_pos(obs: Mapping[str, np.ndarray]) -> np.ndarray:
     return (poses[..., :3] - eef[..., None, :]) * mask[..., None]
 
 
+def object_pair_rel_pos(obs: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Object ``j``'s position minus object ``i``'s for every pair of tracked slots ``i < j`` (in
+    ``np.triu_indices`` order), (N, S(S-1)/2, 3); a pair with a masked slot is zero."""
+    poses, mask = np.asarray(obs["object_poses"], np.float64), np.asarray(obs["object_mask"], np.float64)
+    i, j = np.triu_indices(poses.shape[-2], k=1)
+    return (poses[..., j, :3] - poses[..., i, :3]) * (mask[..., i] * mask[..., j])[..., None]
+
+
+DERIVED = {"object_rel_pos": object_rel_pos, "object_pair_rel_pos": object_pair_rel_pos}
+
+
 def observation_vector(obs: Mapping[str, np.ndarray], keys: tuple[str, ...] = OBS_KEYS) -> np.ndarray:
     """Flatten observation ``keys`` with one leading batch dim, (N, ...) each, into (N, C) float32."""
     parts = []
@@ -79,8 +94,8 @@ def observation_vector(obs: Mapping[str, np.ndarray], keys: tuple[str, ...] = OB
         missing = [k for k in DERIVED_KEYS.get(key, (key,)) if k not in obs]
         if missing:
             raise KeyError(f"observation has no key {missing[0]!r}; the policy was trained on {list(keys)}")
-        if key == "object_rel_pos":
-            parts.append(object_rel_pos(obs).reshape(len(obs["eef_pos"]), -1))
+        if key in DERIVED:
+            parts.append(DERIVED[key](obs).reshape(len(obs[DERIVED_KEYS[key][0]]), -1))
             continue
         value = np.asarray(obs[key], dtype=np.float64)
         if key == "eef_quat":
