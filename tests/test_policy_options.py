@@ -7,6 +7,7 @@ import inspect
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from detaug_gym.policies import available_policies, make_policy, parse_policy_options, policy_options_class
@@ -51,6 +52,7 @@ def test_values_convert_by_declared_type():
     ({"cost": "volume"}, "unknown cost 'volume'; valid: penetration, clearance"),
     ({"mode": "best"}, "valid: select, null_guidance, guided_select, null_select"),
     ({"flow_steps": "0"}, "flow_steps must be >= 1"),
+    ({"noise_scale": "1.5"}, r"noise_scale must lie in \[0, 1\], got 1.5"),
     ({"k": True}, "k expects an integer"),
 ])
 def test_bad_detaug_values_are_rejected(raw, message):
@@ -146,3 +148,19 @@ def test_constructors_validate_through_the_same_dataclass(tmp_path):
     with pytest.raises(TypeError):
         make_policy("random", scael=0.5)
     assert make_policy("random", suite="spatial", seed=1).scale == 1.0
+
+
+def test_noise_scale_shrinks_the_start_noise(tiny_base_checkpoint):
+    """noise_scale multiplies the noise a plan starts from: 0 gives one plan per observation whatever the seed,
+    1 (the default) varies with it, and a smaller scale keeps plans nearer each other."""
+    ckpt, obs = tiny_base_checkpoint
+
+    def plans(seed: int, **options):
+        policy = make_policy("base", checkpoint=ckpt, seed=seed, **options)
+        return policy.plan(obs, None, num_samples=16).numpy()
+
+    assert np.array_equal(plans(0, noise_scale=0.0), plans(1, noise_scale=0.0))
+    assert not np.allclose(plans(0), plans(1))
+    assert np.allclose(plans(0, noise_scale=1.0), plans(0))  # the default is the training distribution
+    spread = {scale: plans(0, noise_scale=scale).std(axis=0).mean() for scale in (0.3, 1.0)}
+    assert spread[0.3] < spread[1.0], spread

@@ -69,10 +69,11 @@ class FlowPolicy:
         return [zoo_dir(cls.zoo_method, suite)] if cls.zoo_method else []
 
     def __init__(self, checkpoint: Checkpoint | str | Path, action_steps: int | None = None, flow_steps: int = 10,
-                 label_mode: str = "auto", binarize_gripper: bool = True, seed: int | None = None,
-                 device: str = "cpu") -> None:
+                 label_mode: str = "auto", binarize_gripper: bool = True, noise_scale: float = 1.0,
+                 seed: int | None = None, device: str = "cpu") -> None:
         options = FlowOptions(action_steps=action_steps, flow_steps=flow_steps, label_mode=label_mode,
-                              binarize_gripper=binarize_gripper, seed=seed, device=device)  # type and range checks
+                              binarize_gripper=binarize_gripper, noise_scale=noise_scale, seed=seed,
+                              device=device)  # type and range checks
         self.device = resolve_device(options.device)
         self.checkpoint = checkpoint if isinstance(checkpoint, Checkpoint) else load_checkpoint(checkpoint)
         self.network = self.checkpoint.network.to(self.device)
@@ -83,6 +84,7 @@ class FlowPolicy:
             raise ValueError(f"action_steps must lie in [1, {self.horizon}], got {action_steps}")
         self.action_steps, self.flow_steps = action_steps, options.flow_steps
         self.label_mode, self.binarize_gripper = options.label_mode, options.binarize_gripper
+        self.noise_scale = options.noise_scale
         self._default_seed = options.seed
         self._queue: deque[np.ndarray] = deque()
         self._plan: np.ndarray | None = None
@@ -196,7 +198,7 @@ class FlowPolicy:
         with torch.no_grad():
             extra = net.extra(*(None if p is None else p.to(dev) for p in (points, point_mask)))
         steps = steps or (self.flow_steps if init_plan is None else remaining_steps(self.flow_steps, t_start))
-        noise = torch.randn(shape, generator=generator or self.generator).to(dev)
+        noise = (self.noise_scale * torch.randn(shape, generator=generator or self.generator)).to(dev)
         weights = (self.checkpoint.digest or id(net), str(dev))
         request = PlanRequest(net, weights, obs_cond, label, extra, inpaint, noise, x_start, t_start, steps, guidance)
         x = run_requests([request])[0] if self._batcher is None else self._batcher.submit(request)
