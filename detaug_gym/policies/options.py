@@ -117,7 +117,7 @@ class FlowSamplingOptions(PolicyOptions):
     """Snap the gripper command to -1 (open) / +1 (close)."""
     noise_scale: float = 1.0
     """Scale of the Gaussian noise each plan starts from (1: the training distribution; below 1 samples
-    nearer the flow's mode, 0 is deterministic per observation; in [0, 1])."""
+    nearer the flow's mode, 0 is deterministic per observation, above 1 spreads the plans wider; >= 0)."""
     seed: int | None = None
     """Default seed of the sampling noise when reset() is called without one."""
     device: str = "cpu"
@@ -128,7 +128,7 @@ class FlowSamplingOptions(PolicyOptions):
     def __post_init__(self) -> None:
         super().__post_init__()
         _require(self.flow_steps >= 1, f"flow_steps must be >= 1, got {self.flow_steps}")
-        _require(0.0 <= self.noise_scale <= 1.0, f"noise_scale must lie in [0, 1], got {self.noise_scale}")
+        _require(self.noise_scale >= 0.0, f"noise_scale must be >= 0, got {self.noise_scale}")
         check_device(self.device)
 
     def flow_policy_kwargs(self) -> dict[str, Any]:
