@@ -54,7 +54,8 @@ class CollectArgs:
     demos: int = 50
     """Demos to keep per task."""
     policy: str = "scripted"
-    """Registered policy that produces the demos."""
+    """Registered policy that produces the demos, with options as the bench spells them
+    (``scripted:fumble=0.5``)."""
     seed: int = 0
     """Base seed; demo ``i`` of task ``t`` uses ``seed + 1000 t + i``."""
     max_attempts: int | None = None
@@ -75,12 +76,21 @@ class CollectArgs:
     """Mean length of a disturbance burst, in env steps (with ``noise_duty < 1``)."""
     tail_steps: int = 0
     """Env steps recorded after the first success (the expert lets go and retreats); 0 ends the demo there."""
+    max_steps: int | None = None
+    """Step limit of each episode (default: the suite's, which the benchmark keeps). A longer one keeps demos
+    that finish late, e.g. recovery demos whose second handle grasp runs past the drawer task's 300 steps."""
 
     def __post_init__(self) -> None:
         if self.demos < 1:
             raise ValueError(f"--demos must be >= 1, got {self.demos}")
         if self.tail_steps < 0:
             raise ValueError(f"--tail-steps must be >= 0, got {self.tail_steps}")
+        try:
+            _policy_spec(self.policy)
+        except (KeyError, ValueError) as exc:
+            raise ValueError(f"--policy {self.policy!r}: {exc}") from None
+        if self.max_steps is not None and self.max_steps < 1:
+            raise ValueError(f"--max-steps must be >= 1, got {self.max_steps}")
         if self.max_attempts is not None and self.max_attempts < 1:
             raise ValueError(f"--max-attempts must be >= 1, got {self.max_attempts}")
         if self.layout is not None:
@@ -178,6 +188,19 @@ class NoiseHook(Hook):
         self.solved |= step.terminated
 
 
+class ActedOutHook(Hook):
+    """Sends the policy's :attr:`sent` action instead of its returned one whenever it sets one: a mistake the
+    scripted expert acts out on purpose (``scripted:fumble=P``) while its returned action, the demo's label,
+    stays its correct command."""
+
+    def __init__(self, policy) -> None:
+        self.policy = policy
+
+    def transform(self, action: np.ndarray) -> np.ndarray:
+        sent = getattr(self.policy, "sent", None)
+        return action if sent is None else sent
+
+
 class DemoRecorder(Hook):
     """Records an episode as a :class:`~detaug_gym.data.Demo`: the non-obstacle observations and the simulator
     state before each action, the policy's actions (the targets) and, when a hook changed them, the sent ones."""
@@ -213,15 +236,17 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
     """Run one episode and record it; returns the demo and whether it succeeded.
 
     With ``noise`` the env gets the disturbed action and the demo records the policy's clean one as
-    ``actions`` (and the disturbed one as ``executed_actions``). With ``tail_steps`` the recording goes on
-    that many steps past the first success (the env's step limit no longer applies then, and the tail is
-    not disturbed), and the episode counts as a success only if the task is still solved at the end of it.
+    ``actions`` (and the disturbed one as ``executed_actions``); so does a policy that acts out a mistake on
+    purpose (the expert's ``fumble``: :class:`ActedOutHook`, applied before the noise). With ``tail_steps`` the
+    recording goes on that many steps past the first success (the env's step limit no longer applies then, and
+    the tail is not disturbed), and the episode counts as a success only if the task is still solved at its end.
     """
     options = {"init_state": init_state}
     if len(env.unwrapped.tasks) > 1:
         options["task"] = task
-    recorder = DemoRecorder(keep_sent=noise is not None)
-    hooks = [recorder] if noise is None else [NoiseHook(noise, seed), recorder]
+    acted = [ActedOutHook(policy)] if getattr(policy, "fumble", 0.0) > 0 else []
+    recorder = DemoRecorder(keep_sent=noise is not None or bool(acted))
+    hooks = [*acted, *([] if noise is None else [NoiseHook(noise, seed)]), recorder]
     result = rollout(env, policy, seed=seed, options=options, hooks=hooks, stop=until_done(tail_steps))
     base = env.unwrapped
     attrs = {
@@ -255,16 +280,24 @@ def parse_tasks(spec: str, num_tasks: int) -> list[int]:
     return [task]
 
 
+def _policy_spec(spec: str) -> tuple[str, dict]:
+    """``"scripted:fumble=0.5"`` -> ``("scripted", {"fumble": 0.5})``, checked as the bench checks methods."""
+    from detaug_gym.bench import parse_method
+
+    return parse_method(spec)
+
+
 def collect(args: CollectArgs) -> list[TaskStats]:
     """Run the collection described by ``args``; returns per-task statistics."""
     from tqdm import tqdm
 
-    env_kwargs = {key: value for key, value in (("controller", args.controller), ("layout", args.layout))
-                  if value is not None}
+    env_kwargs = {key: value for key, value in (("controller", args.controller), ("layout", args.layout),
+                                                ("max_episode_steps", args.max_steps)) if value is not None}
     env = gym.make(args.env, **env_kwargs)
     base = env.unwrapped
     tasks = parse_tasks(args.task, len(base.tasks))
-    policy = make_policy(args.policy)
+    name, options = _policy_spec(args.policy)
+    policy = make_policy(name, **options)
     noise = (ActionNoise(args.action_noise, args.noise_tau, args.noise_duty, args.noise_burst)
              if args.action_noise > 0 else None)
     env_args = {"env_name": args.env, "env_version": getattr(detaug_gym, "__version__", "0"),

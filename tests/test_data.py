@@ -155,6 +155,34 @@ def test_tail_steps_record_the_expert_letting_go_after_the_first_success(collect
         main(["--env", "SafeLibero-Spatial-Free-v0", "--out", str(tmp_path / "x.hdf5"), "--tail-steps", "-1"])
 
 
+def test_collect_takes_policy_options_and_a_step_limit(tmp_path):
+    from detaug_gym.collect import CollectArgs, collect
+
+    args = dict(env="SafeLibero-Spatial-Free-v0", out=str(tmp_path / "short.hdf5"), task="0", demos=1)
+    stats = collect(CollectArgs(**args, policy="scripted:variation=0.5", max_steps=30, max_attempts=1))
+    assert stats[0].attempts == 1 and stats[0].kept == 0  # no pick-and-place finishes in 30 steps
+    with pytest.raises(ValueError, match="fumble must be in"):
+        CollectArgs(**args, policy="scripted:fumble=2")
+    with pytest.raises(ValueError, match="unknown policy"):
+        CollectArgs(**args, policy="expert")
+    with pytest.raises(ValueError, match="--max-steps must be >= 1"):
+        CollectArgs(**args, max_steps=0)
+
+
+def test_fumbled_drawer_demos_record_the_correct_command_and_send_the_miss(tmp_path):
+    from detaug_gym.collect import CollectArgs, collect
+
+    path = tmp_path / "fumble.hdf5"
+    stats = collect(CollectArgs(env="SafeLibero-Goal-Free-v0", out=str(path), task="3", demos=1, seed=500,
+                                policy="scripted:fumble=1", max_steps=400, max_attempts=2))
+    assert stats[0].kept == 1
+    demo = load(path)[0]
+    acted = np.flatnonzero(np.abs(demo.executed_actions - demo.actions).max(axis=1) > 1e-6)
+    assert 15 <= len(acted) <= 60 and np.all(np.diff(acted) == 1)  # one fumble, acted out in one stretch
+    assert np.all(demo.actions[acted, -1] < 0) and np.sum(demo.executed_actions[acted, -1] > 0) >= 8
+    assert len(demo) > 300  # the retry runs past the task's 300 steps: kept thanks to max_steps
+
+
 def test_replay_reproduces_recorded_states(collected):
     import gymnasium as gym
 

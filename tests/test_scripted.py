@@ -113,6 +113,49 @@ def test_expert_opens_the_drawer_and_stows_the_bowl():
     assert success
 
 
+def test_fumble_draws_a_first_handle_miss_and_leaves_the_demo_style_alone():
+    plain, fumbling = make_policy("scripted", seed=3), make_policy("scripted", seed=3, fumble=1.0)
+    assert plain.style == fumbling.style and not plain.handle_miss.any()
+    sizes = []
+    for seed in range(20):
+        fumbling.reset(seed=seed)
+        sizes.append(float(np.linalg.norm(fumbling.handle_miss)))
+    assert 0.035 <= min(sizes) and max(sizes) <= 0.05
+    fumbling.reset(seed=5)
+    again = fumbling.handle_miss.copy()
+    fumbling.reset(seed=5)
+    np.testing.assert_array_equal(fumbling.handle_miss, again)
+    with pytest.raises(ValueError, match="fumble must be in"):
+        make_policy("scripted", fumble=1.5)
+
+
+def test_expert_acts_out_a_missed_drawer_handle_and_grasps_it_again():
+    # A fumble closes the fingers 4 cm in front of the bar, in what is sent only: the returned actions (the demo's
+    # labels) keep heading for the bar with the fingers open. The drawer does not follow, so the expert opens,
+    # backs off and comes again; it then opens the drawer and stows the bowl.
+    env = gym.make("SafeLibero-Goal-Free-v0", max_episode_steps=400)
+    expert = make_policy("scripted")
+    acted = []
+    try:
+        obs, _ = env.reset(seed=3000, options={"task": 3, "init_state": 0})
+        expert.reset(seed=3000)
+        expert.handle_miss = np.array([0.0, -0.04, 0.0])
+        done, info = False, {}
+        while not done:
+            action = expert.act(obs)
+            if expert.sent is not None:
+                acted.append((action, expert.sent))
+            obs, _, terminated, truncated, info = env.step(action if expert.sent is None else expert.sent)
+            done = terminated or truncated
+    finally:
+        env.close()
+    assert info["is_success"]
+    names = [name for name, _, _ in expert.trace]
+    assert names.count("fumble") == 1 and names.count("handle-retry") == 1
+    assert acted and all(label[-1] < 0 for label, _ in acted)  # the labels never close the fingers
+    assert sum(sent[-1] > 0 for _, sent in acted) >= 8  # the env was sent the fumbled close
+
+
 @pytest.mark.parametrize("yaw", [0.0, 0.8, -0.8, 1.5])
 def test_far_rim_grasp_leans_the_fingertips_away_from_the_arm(yaw):
     expert = make_policy("scripted")

@@ -90,9 +90,15 @@ class ScriptedOptions(PolicyOptions):
     """Scale of the per-demo variation (0: the same nominal motion every episode)."""
     seed: int | None = None
     """Default seed used when reset() is called without one."""
+    fumble: float = 0.0
+    """Share of the episodes whose first drawer-handle grasp deliberately misses the bar (3.5-5 cm in front of,
+    above or below it), acted out in what the collection sends while the recorded action stays the correct one,
+    so that the demo shows the expert letting go, backing off and grasping again (recovery demos of Goal's
+    drawer task, docs/data.md; other tasks are unaffected). 0: never."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        _require(0.0 <= self.fumble <= 1.0, f"fumble must be in [0, 1], got {self.fumble}")
         if self.task is not None:
             from detaug_gym.policies.scripted_tasks import RECIPES  # numpy only
 

@@ -14,7 +14,9 @@ rim point instead of closing, which would squeeze the object away. Near the edge
 bowl on the cabinet) the rim point nearest the arm's base is taken and the hand leans outwards, so the elbow
 stays clear of its stretched, singular pose. A rim-held object is let go with the outer finger held in place
 (the hand moves inwards as the fingers open: a pad can wedge in the bowl's faceted wall and drag it along). The drawer
-task pulls the top drawer open first (grasping its handle with the hand pitched towards the cabinet).
+task pulls the top drawer open first (grasping its handle with the hand pitched towards the cabinet; a grasp
+that missed the bar or lost it in the pull is let go and tried again, and ``fumble`` makes a share of the
+episodes miss it first on purpose, for recovery demos).
 Motions are straight lines with a minimum-jerk speed profile, tracked by a proportional servo on the
 end-effector pose, so transits look like teleoperation rather than bang-bang control.
 
@@ -71,6 +73,15 @@ LET_GO_SHIFT = 0.03  # letting go of a rim-held object: the hand moves at most t
 LET_GO_GAIN = 1.0  # hand shift per m of finger opening (the outer pad moves half of it; the rest covers the servo lag)
 # Grip-site orientation with the fingers pointing down and closing along world y (xyzw 0.7071, 0.7071, 0, 0).
 R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+# The drawer handle: finger gap (m) of a grasp closed on the bar (below: shut on nothing; above: stopped open on
+# the drawer front), how far the drawer may lag the pulling hand before the bar counts as lost, how far out it
+# counts as opened, and how many grasps are tried.
+HANDLE_GRIP = (0.002, 0.025)
+DRAWER_LAG, DRAWER_OPENED, HANDLE_ATTEMPTS = 0.02, 0.10, 3
+# A deliberate first miss (``fumble``): the grasp point this far (m) in front of, above or below the bar. Nearer
+# misses, and any too deep (the fingertips stop on the drawer front with the bar between them), still open it.
+HANDLE_MISS = (0.035, 0.05)
+FUMBLE_CLOSE_STEPS = 12  # the fumbled grasp's fingers close this many steps (the command ramps in 8)
 
 Actions = Generator[np.ndarray, None, None]
 
@@ -126,14 +137,22 @@ class ScriptedExpert:
             episode context's task (``reset(context=...)``), else recognised from the first observation.
         variation: scale of the per-demo variation (0 = the same nominal motion every episode).
         seed: default seed when ``reset`` gets none.
+        fumble: share of the episodes whose first drawer-handle grasp misses on purpose (see :attr:`sent`).
         suite: accepted (the bench passes it to every policy) and ignored.
+
+    Attributes:
+        sent: while a fumble is acted out, the action (7,) to send the env instead of the returned one (which
+            stays the correct command, the demo's label); ``None`` otherwise. ``python -m detaug_gym.collect``
+            sends it (:class:`~detaug_gym.collect.ActedOutHook`); any other rollout ignores it, so the expert
+            then never misses.
     """
 
     def __init__(self, task: str | None = None, variation: float = 1.0, seed: int | None = None,
-                 suite: str | None = None) -> None:
-        options = ScriptedOptions(task=task, variation=variation, seed=seed)
+                 fumble: float = 0.0, suite: str | None = None) -> None:
+        options = ScriptedOptions(task=task, variation=variation, seed=seed, fumble=fumble)
         self.task = options.task
         self.variation = options.variation
+        self.fumble = options.fumble
         self._default_seed = options.seed
         self.reset(options.seed)
 
@@ -142,6 +161,9 @@ class ScriptedExpert:
         self._context_recipe = None if context is None else recipe_for(context.suite, context.task_key)
         self._rng = np.random.default_rng(self._default_seed if seed is None else seed)
         self.style = DemoStyle.sample(self._rng, self.variation)
+        self.handle_miss = self._draw_handle_miss() if self.fumble else np.zeros(3)
+        self._acting: tuple[np.ndarray, float | None] | None = None  # (miss, gripper) while acting out a fumble
+        self.sent: np.ndarray | None = None
         self.recipe: Recipe | None = None
         self._script: Actions | None = None
         self._obs: dict[str, np.ndarray] = {}
@@ -152,6 +174,16 @@ class ScriptedExpert:
         self._home = np.zeros(3)
         self._start_poses = np.zeros((0, 7))
         self.trace: list[tuple[str, int, bool]] = []  # (primitive, steps, reached) for debugging
+
+    def _draw_handle_miss(self) -> np.ndarray:
+        """With probability ``fumble``, a first handle grasp point off the bar (drawer-site frame, m): in front of
+        it (the fingers shut on nothing or on its edge), above or below it. Drawn from a stream of its own, so the
+        demo's style is the same with or without ``fumble``."""
+        rng = np.random.default_rng(self._rng.bit_generator.seed_seq.spawn(1)[0])
+        if rng.uniform() >= self.fumble:
+            return np.zeros(3)
+        way = ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, -1.0))[rng.integers(3)]  # -y: out of the cabinet
+        return rng.uniform(*HANDLE_MISS) * np.array(way)
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         self._obs = obs
@@ -311,23 +343,62 @@ class ScriptedExpert:
         self.trace.append(("grip", steps, True))
 
     def _open_drawer(self, site_slot: int) -> Actions:
-        """Grasp the top drawer's handle with the hand pitched towards the cabinet and pull it open."""
+        """Grasp the top drawer's handle with the hand pitched towards the cabinet and pull it open.
+
+        A grasp that missed the bar (the fingers shut on nothing, or stopped open with the fingertips on the
+        drawer front) or lost it in the pull (the drawer stops following the hand) is let go, backed off along
+        the pull and tried again, up to ``HANDLE_ATTEMPTS`` times. The first attempt goes to the bar plus
+        ``self.handle_miss`` (zero unless the ``fumble`` option drew a deliberate miss for a recovery demo).
+        """
         style = self.style
-        site = self._pose(site_slot)
-        rot = quat_xyzw_to_mat(site[3:])
-        handle = site[:3] + rot @ DRAWER_HANDLE
-        pull = rot @ DRAWER_OPEN_DIR
-        yield from self._move(handle + 0.07 * pull + [0, 0, 0.02], 0.0, GRIPPER_OPEN, style.speed, tol=0.015,
-                              pitch=np.pi / 2)
-        yield from self._move(handle - 0.005 * pull, 0.0, GRIPPER_OPEN, 0.5 * style.speed, tol=0.005, pitch=np.pi / 2)
-        yield from self._gripper(GRIPPER_CLOSE)
-        yield from self._move(handle + DRAWER_TRAVEL * pull, 0.0, GRIPPER_CLOSE, 0.7 * style.speed, tol=0.01,
-                              pitch=np.pi / 2)
+        opened_from = self._pose(site_slot)[:3]
+        for attempt in range(HANDLE_ATTEMPTS):
+            site = self._pose(site_slot)
+            rot = quat_xyzw_to_mat(site[3:])
+            handle = site[:3] + rot @ DRAWER_HANDLE
+            pull = rot @ DRAWER_OPEN_DIR
+            yield from self._move(handle + 0.07 * pull + [0, 0, 0.02], 0.0, GRIPPER_OPEN, style.speed, tol=0.015,
+                                  pitch=np.pi / 2)
+            grasp = handle - 0.005 * pull
+            if attempt == 0 and self.handle_miss.any():
+                yield from self._act_out_miss(grasp, rot @ self.handle_miss)
+            else:
+                yield from self._move(grasp, 0.0, GRIPPER_OPEN, 0.5 * style.speed, tol=0.005, pitch=np.pi / 2)
+                yield from self._gripper(GRIPPER_CLOSE)
+            if HANDLE_GRIP[0] < self._width() < HANDLE_GRIP[1]:
+                lost = partial(self._drawer_lags, site_slot, pull, self._eef() @ pull,
+                               self._pose(site_slot)[:3] @ pull)
+                travel = DRAWER_TRAVEL - float((site[:3] - opened_from) @ pull)
+                yield from self._move(handle + travel * pull, 0.0, GRIPPER_CLOSE, 0.7 * style.speed, tol=0.01,
+                                      pitch=np.pi / 2, check=lost)
+            if float((self._pose(site_slot)[:3] - opened_from) @ pull) > DRAWER_OPENED:
+                break
+            self.trace.append(("handle-retry", attempt, False))
+            yield from self._release()
+            yield from self._move(self._eef() + 0.05 * pull + [0, 0, 0.01], 0.0, GRIPPER_OPEN, style.speed,
+                                  tol=0.015, pitch=np.pi / 2)
         yield from self._release()
         # back out along the pull, then up to the transit height turning the hand down: the fingers must not
         # sweep over the drawer front (that pushes it shut again)
         yield from self._move(self._eef() + 0.05 * pull, 0.0, GRIPPER_OPEN, style.speed, tol=0.015)
         yield from self._move(np.r_[self._eef()[:2], TRANSIT_Z], 0.0, GRIPPER_OPEN, style.speed, tol=0.03, pitch=0.0)
+
+    def _act_out_miss(self, grasp: np.ndarray, miss: np.ndarray) -> Actions:
+        """A fumbled handle grasp, acted out in :attr:`sent` only: the env is sent the approach to ``grasp + miss``
+        and the fingers closing there, while the returned actions (the demo's labels) are the expert's correct
+        commands from each state reached: on to ``grasp`` with the fingers open. As with action noise, the demo
+        then shows the way back, not the mistake."""
+        self._acting = (miss, None)
+        yield from self._move(grasp, 0.0, GRIPPER_OPEN, 0.5 * self.style.speed, tol=0.005, pitch=np.pi / 2)
+        self._acting = (miss, GRIPPER_CLOSE)
+        for _ in range(FUMBLE_CLOSE_STEPS):
+            yield self._servo(grasp, GRIPPER_OPEN)
+        self._acting = None
+        self.trace.append(("fumble", FUMBLE_CLOSE_STEPS, False))
+
+    def _drawer_lags(self, site_slot: int, pull: np.ndarray, hand_from: float, drawer_from: float) -> bool:
+        """Pulling: the hand has moved along ``pull`` more than ``DRAWER_LAG`` further than the drawer."""
+        return (self._eef() @ pull - hand_from) - (self._pose(site_slot)[:3] @ pull - drawer_from) > DRAWER_LAG
 
     # ------------------------------------------------------------------ geometry
     def _grasp_pose(self, step: Step, attempt: int = 0) -> tuple[np.ndarray, float]:
@@ -469,10 +540,17 @@ class ScriptedExpert:
         return float(np.linalg.norm(rotation_error(self._hand_rotation(), current)))
 
     def _servo(self, target: np.ndarray, grip: float) -> np.ndarray:
-        """OSC_POSE delta that sets the controller's goal to ``target`` and the current yaw/pitch."""
+        """OSC_POSE delta that sets the controller's goal to ``target`` and the current yaw/pitch (and, while a
+        fumble is acted out, :attr:`sent` with the goal moved by the miss and the fumble's gripper command)."""
         self._grip = grip
         current = quat_xyzw_to_mat(np.asarray(self._obs["eef_quat"], dtype=np.float64))
-        return goal_to_action(self._eef(), current, target, self._hand_rotation(), grip).astype(np.float32)
+        action = goal_to_action(self._eef(), current, target, self._hand_rotation(), grip).astype(np.float32)
+        self.sent = None
+        if self._acting is not None:
+            miss, sent_grip = self._acting
+            self.sent = goal_to_action(self._eef(), current, target + miss, self._hand_rotation(),
+                                       grip if sent_grip is None else sent_grip).astype(np.float32)
+        return action
 
     # ------------------------------------------------------------------ observation access
     def _eef(self) -> np.ndarray:
