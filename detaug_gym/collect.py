@@ -36,7 +36,7 @@ import detaug_gym  # noqa: F401  (registers the env ids)
 from detaug_gym.actions import controller_settings
 from detaug_gym.config import build_parser, config_from_namespace
 from detaug_gym.data.dataset import DatasetWriter, Demo, is_recorded
-from detaug_gym.policies import make_policy
+from detaug_gym.policies import Policy, make_policy
 from detaug_gym.rollout import Hook, Step, rollout, until_done
 from detaug_gym.seeds import demo_seed
 
@@ -88,7 +88,7 @@ class CollectArgs:
         try:
             _policy_spec(self.policy)
         except (KeyError, ValueError) as exc:
-            raise ValueError(f"--policy {self.policy!r}: {exc}") from None
+            raise ValueError(f"--policy {self.policy!r}: {exc.args[0]}") from None
         if self.max_steps is not None and self.max_steps < 1:
             raise ValueError(f"--max-steps must be >= 1, got {self.max_steps}")
         if self.max_attempts is not None and self.max_attempts < 1:
@@ -193,7 +193,7 @@ class ActedOutHook(Hook):
     scripted expert acts out on purpose (``scripted:fumble=P``) while its returned action, the demo's label,
     stays its correct command."""
 
-    def __init__(self, policy) -> None:
+    def __init__(self, policy: Policy) -> None:
         self.policy = policy
 
     def transform(self, action: np.ndarray) -> np.ndarray:
@@ -203,7 +203,8 @@ class ActedOutHook(Hook):
 
 class DemoRecorder(Hook):
     """Records an episode as a :class:`~detaug_gym.data.Demo`: the non-obstacle observations and the simulator
-    state before each action, the policy's actions (the targets) and, when a hook changed them, the sent ones."""
+    state before each action, the policy's actions (the targets) and, with ``keep_sent`` when a hook changed
+    any of them, the sent ones."""
 
     needs_states = True
 
@@ -227,7 +228,7 @@ class DemoRecorder(Hook):
             attrs=attrs,
             rewards=np.asarray([s.reward for s in self.steps], dtype=np.float32),
             dones=dones,
-            executed_actions=sent if self.keep_sent else None,
+            executed_actions=sent if self.keep_sent and not np.array_equal(sent, actions) else None,
         )
 
 
@@ -261,6 +262,8 @@ def record_episode(env, policy, task: int, init_state: int, seed: int, env_id: s
         attrs["layout"] = base.episode_layout
     if tail_steps:
         attrs["tail_steps"] = int(tail_steps)
+    if acted:
+        attrs["fumble"] = float(policy.fumble)
     if noise is not None:
         attrs["action_noise"] = json.dumps({"sigma": noise.sigma, "tau": noise.tau, "duty": noise.duty,
                                             "burst": noise.burst, "dims": "xyz"})

@@ -181,6 +181,10 @@ def test_fumbled_drawer_demos_record_the_correct_command_and_send_the_miss(tmp_p
     assert 15 <= len(acted) <= 60 and np.all(np.diff(acted) == 1)  # one fumble, acted out in one stretch
     assert np.all(demo.actions[acted, -1] < 0) and np.sum(demo.executed_actions[acted, -1] > 0) >= 8
     assert len(demo) > 300  # the retry runs past the task's 300 steps: kept thanks to max_steps
+    assert demo.attrs["fumble"] == 1.0
+    clean = tmp_path / "clean.hdf5"  # fumble changes nothing in a task without a drawer: no executed_actions
+    collect(CollectArgs(env="SafeLibero-Goal-Free-v0", out=str(clean), task="0", demos=1, policy="scripted:fumble=1"))
+    assert load(clean)[0].executed_actions is None
 
 
 def test_replay_reproduces_recorded_states(collected):

@@ -116,6 +116,7 @@ def test_expert_opens_the_drawer_and_stows_the_bowl():
 def test_fumble_draws_a_first_handle_miss_and_leaves_the_demo_style_alone():
     plain, fumbling = make_policy("scripted", seed=3), make_policy("scripted", seed=3, fumble=1.0)
     assert plain.style == fumbling.style and not plain.handle_miss.any()
+    assert plain._rng.uniform() == fumbling._rng.uniform()  # the miss did not draw from the demo's own stream
     sizes = []
     for seed in range(20):
         fumbling.reset(seed=seed)
