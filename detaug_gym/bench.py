@@ -13,7 +13,7 @@ Examples (copy-paste)::
     python -m detaug_gym.bench --seeds 0 1 --video 1 --video-failures
 
     # the official SafeLIBERO episodes (SAFELIBERO_ROOT or --safelibero-root), 50 per task, feasible cells only
-    python -m detaug_gym.bench --methods detaug cape aegis demogen --scenarios official --suites spatial \
+    python -m detaug_gym.bench --methods detaug cape aegis demogen --scenarios official --suites spatial \\
         --levels 1 2 --episodes 50 --cells feasible --out results/official_spatial
 
     # obstacle-free reference runs

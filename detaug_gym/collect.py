@@ -19,7 +19,7 @@ the expert steering back, states a policy trained on clean demos never sees. Wha
 that its demos never share a (task, init state, seed) with the clean file's, and pool the two files when
 training:
 
-    python -m detaug_gym.collect --env SafeLibero-Spatial-Free-v0 --task all --demos 50 --seed 500 \
+    python -m detaug_gym.collect --env SafeLibero-Spatial-Free-v0 --task all --demos 50 --seed 500 \\
         --action-noise 0.3 --noise-duty 0.25 --max-attempts 250 --out data/spatial_noisy.hdf5
 """
 

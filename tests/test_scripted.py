@@ -113,15 +113,24 @@ def test_expert_opens_the_drawer_and_stows_the_bowl():
     assert success
 
 
-def test_fumble_draws_a_first_handle_miss_and_leaves_the_demo_style_alone():
+def test_fumble_draws_first_misses_and_leaves_the_demo_style_alone():
+    from detaug_gym.policies.scripted_tasks import RECIPES
+
+    can, mug = RECIPES["soup_cheese_basket"].steps[0], RECIPES["mugs_on_plates"].steps[0]
     plain, fumbling = make_policy("scripted", seed=3), make_policy("scripted", seed=3, fumble=1.0)
-    assert plain.style == fumbling.style and not plain.handle_miss.any()
-    assert plain._rng.uniform() == fumbling._rng.uniform()  # the miss did not draw from the demo's own stream
-    sizes = []
+    assert plain.style == fumbling.style and not plain.handle_miss.any() and not plain._draw_pick_miss(can).any()
+    assert plain._rng.uniform() == fumbling._rng.uniform()  # the misses did not draw from the demo's own stream
+    sizes, picks = [], []
     for seed in range(20):
         fumbling.reset(seed=seed)
         sizes.append(float(np.linalg.norm(fumbling.handle_miss)))
+        picks.append(fumbling._draw_pick_miss(can))
+        assert not fumbling._draw_pick_miss(mug).any()  # a rim-held object never fumbles
     assert 0.035 <= min(sizes) and max(sizes) <= 0.05
+    picks = np.array(picks)
+    assert np.all(picks[:, 2] == 0)  # a pick misses beside the grasp point, in every horizontal direction
+    assert 0.025 <= np.linalg.norm(picks, axis=1).min() and np.linalg.norm(picks, axis=1).max() <= 0.04
+    assert (picks[:, 0] > 0).any() and (picks[:, 0] < 0).any() and (picks[:, 1] > 0).any() and (picks[:, 1] < 0).any()
     fumbling.reset(seed=5)
     again = fumbling.handle_miss.copy()
     fumbling.reset(seed=5)
@@ -155,6 +164,32 @@ def test_expert_acts_out_a_missed_drawer_handle_and_grasps_it_again():
     assert names.count("fumble") == 1 and names.count("handle-retry") == 1
     assert acted and all(label[-1] < 0 for label, _ in acted)  # the labels never close the fingers
     assert sum(sent[-1] > 0 for _, sent in acted) >= 8  # the env was sent the fumbled close
+
+
+def test_expert_acts_out_a_missed_pick_and_grasps_again():
+    # A pick fumble sends the descent 2.5-4 cm beside the grasp point and closes the fingers there, while the labels
+    # keep heading for the grasp point with the fingers open; the expert's own check (the hand ended above or
+    # beside the grasp point) then backs off and grasps again. Long task 0 at this seed: a finger lands on the can.
+    env = gym.make("SafeLibero-Long-Free-v0")
+    expert = make_policy("scripted", fumble=1.0)
+    acted = []
+    try:
+        obs, _ = env.reset(seed=3000, options={"task": 0})
+        expert.reset(seed=3000)
+        done, info = False, {}
+        while not done:
+            action = expert.act(obs)
+            if expert.sent is not None:
+                acted.append((action, expert.sent))
+            obs, _, terminated, truncated, info = env.step(action if expert.sent is None else expert.sent)
+            done = terminated or truncated
+    finally:
+        env.close()
+    assert info["is_success"]
+    names = [name for name, _, _ in expert.trace]
+    assert names.count("fumble") == 2 and names.count("regrasp") >= 2  # both picks of the task missed first
+    assert acted and all(label[-1] < 0 for label, _ in acted)
+    assert sum(sent[-1] > 0 for _, sent in acted) >= 16
 
 
 @pytest.mark.parametrize("yaw", [0.0, 0.8, -0.8, 1.5])

@@ -91,10 +91,11 @@ class ScriptedOptions(PolicyOptions):
     seed: int | None = None
     """Default seed used when reset() is called without one."""
     fumble: float = 0.0
-    """Share of the episodes whose first drawer-handle grasp deliberately misses the bar (3.5-5 cm in front of,
-    above or below it), acted out in what the collection sends while the recorded action stays the correct one,
-    so that the demo shows the expert letting go, backing off and grasping again (recovery demos of Goal's
-    drawer task, docs/data.md; other tasks are unaffected). 0: never."""
+    """Chance that a grasp's first try deliberately misses: the drawer handle's (3.5-5 cm in front of, above or
+    below the bar) and each pick's of a can or a box (the descent 2.5-4 cm beside the grasp point; never a
+    rim-held mug or bowl, which a miss tips over). The miss is acted out in what the collection sends while the
+    recorded action stays the correct one, so that the demo shows the expert letting go, backing off and
+    grasping again (recovery demos, docs/data.md). 0: never."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

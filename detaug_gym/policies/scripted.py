@@ -15,8 +15,8 @@ bowl on the cabinet) the rim point nearest the arm's base is taken and the hand 
 stays clear of its stretched, singular pose. A rim-held object is let go with the outer finger held in place
 (the hand moves inwards as the fingers open: a pad can wedge in the bowl's faceted wall and drag it along). The drawer
 task pulls the top drawer open first (grasping its handle with the hand pitched towards the cabinet; a grasp
-that missed the bar or lost it in the pull is let go and tried again, and ``fumble`` makes a share of the
-episodes miss it first on purpose, for recovery demos).
+that missed the bar or lost it in the pull is let go and tried again). ``fumble`` makes a share of the grasps
+(handle and picks) miss first on purpose, for recovery demos.
 Motions are straight lines with a minimum-jerk speed profile, tracked by a proportional servo on the
 end-effector pose, so transits look like teleoperation rather than bang-bang control.
 
@@ -81,6 +81,10 @@ DRAWER_LAG, DRAWER_OPENED, HANDLE_ATTEMPTS = 0.02, 0.10, 3
 # A deliberate first miss (``fumble``): the grasp point this far (m) in front of, above or below the bar. Nearer
 # misses, and any too deep (the fingertips stop on the drawer front with the bar between them), still open it.
 HANDLE_MISS = (0.035, 0.05)
+# An object pick's deliberate first miss (not of rim-held objects): the descent goes this far (m) beside the grasp
+# point, in a random horizontal direction (a finger lands on the object, or the fingers straddle air beside it), as
+# a policy's grasps miss (Long's base: 3-6 cm). The expert's own checks then back off and grasp again.
+PICK_MISS = (0.025, 0.04)
 FUMBLE_CLOSE_STEPS = 12  # the fumbled grasp's fingers close this many steps (the command ramps in 8)
 
 Actions = Generator[np.ndarray, None, None]
@@ -137,15 +141,16 @@ class ScriptedExpert:
             episode context's task (``reset(context=...)``), else recognised from the first observation.
         variation: scale of the per-demo variation (0 = the same nominal motion every episode).
         seed: default seed when ``reset`` gets none.
-        fumble: share of the episodes whose first drawer-handle grasp misses on purpose (see :attr:`sent`).
+        fumble: chance that a grasp's first try (the drawer handle's, each pick's) misses on purpose (see
+            :attr:`sent`).
         suite: accepted (the bench passes it to every policy) and ignored.
 
     Attributes:
         sent: while a fumble is acted out, the action (7,) to send the env instead of the returned one (which
             stays the correct command, the demo's label); ``None`` otherwise. ``python -m detaug_gym.collect``
             sends it (:class:`~detaug_gym.collect.ActedOutHook`). A rollout that sends the returned actions
-            instead takes the hand to the bar without closing it there, and the expert grasps again (about 45
-            steps lost): ``fumble`` is a collection option.
+            instead takes the hand to the grasp point without closing it there, and the expert grasps again
+            (about 45 steps lost): ``fumble`` is a collection option.
     """
 
     def __init__(self, task: str | None = None, variation: float = 1.0, seed: int | None = None,
@@ -162,7 +167,9 @@ class ScriptedExpert:
         self._context_recipe = None if context is None else recipe_for(context.suite, context.task_key)
         self._rng = np.random.default_rng(self._default_seed if seed is None else seed)
         self.style = DemoStyle.sample(self._rng, self.variation)
-        self.handle_miss = self._draw_handle_miss() if self.fumble else np.zeros(3)
+        # the fumble draws come from a stream of their own, so the demo's style is the same with or without them
+        self._fumble_rng = np.random.default_rng(self._rng.bit_generator.seed_seq.spawn(1)[0])
+        self.handle_miss = self._draw_handle_miss()
         self._acting: tuple[np.ndarray, float | None] | None = None  # (miss, gripper) while acting out a fumble
         self.sent: np.ndarray | None = None
         self.recipe: Recipe | None = None
@@ -178,13 +185,22 @@ class ScriptedExpert:
 
     def _draw_handle_miss(self) -> np.ndarray:
         """With probability ``fumble``, a first handle grasp point off the bar (drawer-site frame, m): in front of
-        it (the fingers shut on nothing or on its edge), above or below it. Drawn from a stream of its own, so the
-        demo's style is the same with or without ``fumble``."""
-        rng = np.random.default_rng(self._rng.bit_generator.seed_seq.spawn(1)[0])
-        if rng.uniform() >= self.fumble:
+        it (the fingers shut on nothing or on its edge), above or below it."""
+        rng = self._fumble_rng
+        if not self.fumble or rng.uniform() >= self.fumble:
             return np.zeros(3)
         way = ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, -1.0))[rng.integers(3)]  # -y: out of the cabinet
         return rng.uniform(*HANDLE_MISS) * np.array(way)
+
+    def _draw_pick_miss(self, step: Step) -> np.ndarray:
+        """With probability ``fumble``, a pick's first descent point off the grasp point (world frame, m):
+        :data:`PICK_MISS` away in a random horizontal direction. Never for a rim-held object (a mug, a bowl):
+        fingers coming down beside or inside its rim tip it over, and its demos taught worse grasps."""
+        rng = self._fumble_rng
+        if not self.fumble or OBJECTS[step.obj].style == "rim" or rng.uniform() >= self.fumble:
+            return np.zeros(3)
+        angle = rng.uniform(-np.pi, np.pi)
+        return rng.uniform(*PICK_MISS) * np.array([np.cos(angle), np.sin(angle), 0.0])
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         self._obs = obs
@@ -208,8 +224,10 @@ class ScriptedExpert:
             yield from self._open_drawer(recipe.steps[0].target_slot)
         transit_z = TRANSIT_Z if recipe.open_drawer else None
         for step in recipe.steps:
+            miss = self._draw_pick_miss(step)
             for _ in range(3):  # the object can slip out in the carry: pick it up again
-                offset = yield from self._pick(step, transit_z=transit_z)
+                offset = yield from self._pick(step, transit_z=transit_z, miss=miss)
+                miss = np.zeros(3)
                 if (yield from self._place(step, offset)):
                     break
             # leaving a container: arc over its rim (the servo lags the curve, hence the margin)
@@ -218,11 +236,12 @@ class ScriptedExpert:
             yield self._servo(self._eef(), GRIPPER_OPEN)
 
     def _pick(self, step: Step, lift: float | None = None, transit_z: float | None = None,
-              ) -> Generator[np.ndarray, None, np.ndarray]:
+              miss: np.ndarray | None = None) -> Generator[np.ndarray, None, np.ndarray]:
         """Grasp the object in ``step.obj_slot`` and lift it; returns the grasp offset (eef - object).
 
         ``lift`` (m above the grasp) replaces the default lift to the carry height (short hops);
-        ``transit_z``: first go over the pre-grasp point at this height, turning the hand there, then down.
+        ``transit_z``: first go over the pre-grasp point at this height, turning the hand there, then down;
+        ``miss`` (3,): the first descent and close are acted out this far beside the grasp point (``fumble``).
         """
         style = self.style
         for attempt in range(4):
@@ -238,7 +257,10 @@ class ScriptedExpert:
             # a finger landing on the object gets pushed in: stop pressing at once (pressing on, the wedged
             # finger flings a light object away when it comes free)
             squeezed = partial(lambda width: self._width() < width - SQUEEZED, self._width())
-            yield from self._move(grasp, yaw, GRIPPER_OPEN, 0.6 * style.speed, tol=0.004, check=squeezed)
+            if attempt == 0 and miss is not None and miss.any():
+                yield from self._act_out_miss(grasp, miss, yaw, pitch, 0.6 * style.speed, check=squeezed)
+            else:
+                yield from self._move(grasp, yaw, GRIPPER_OPEN, 0.6 * style.speed, tol=0.004, check=squeezed)
             if attempt < 3 and self._blocked(step, attempt):
                 # a finger came down on the rim, or the touch knocked the object away: closing would squeeze
                 # it out of reach, so back off and come again (the next attempt turns the rim point)
@@ -362,7 +384,7 @@ class ScriptedExpert:
                                   pitch=np.pi / 2)
             grasp = handle - 0.005 * pull
             if attempt == 0 and self.handle_miss.any():
-                yield from self._act_out_miss(grasp, rot @ self.handle_miss)
+                yield from self._act_out_miss(grasp, rot @ self.handle_miss, 0.0, np.pi / 2, 0.5 * style.speed)
             else:
                 yield from self._move(grasp, 0.0, GRIPPER_OPEN, 0.5 * style.speed, tol=0.005, pitch=np.pi / 2)
                 yield from self._gripper(GRIPPER_CLOSE)
@@ -384,13 +406,14 @@ class ScriptedExpert:
         yield from self._move(self._eef() + 0.05 * pull, 0.0, GRIPPER_OPEN, style.speed, tol=0.015)
         yield from self._move(np.r_[self._eef()[:2], TRANSIT_Z], 0.0, GRIPPER_OPEN, style.speed, tol=0.03, pitch=0.0)
 
-    def _act_out_miss(self, grasp: np.ndarray, miss: np.ndarray) -> Actions:
-        """A fumbled handle grasp, acted out in :attr:`sent` only: the env is sent the approach to ``grasp + miss``
-        and the fingers closing there, while the returned actions (the demo's labels) are the expert's correct
-        commands from each state reached: on to ``grasp`` with the fingers open. As with action noise, the demo
-        then shows the way back, not the mistake."""
+    def _act_out_miss(self, grasp: np.ndarray, miss: np.ndarray, yaw: float, pitch: float, speed: float,
+                      check=None) -> Actions:
+        """A fumbled grasp (a drawer handle or an object), acted out in :attr:`sent` only: the env is sent the
+        descent to ``grasp + miss`` and the fingers closing there, while the returned actions (the demo's labels)
+        are the expert's correct commands from each state reached: on to ``grasp`` with the fingers open. As with
+        action noise, the demo then shows the way back, not the mistake."""
         self._acting = (miss, None)
-        yield from self._move(grasp, 0.0, GRIPPER_OPEN, 0.5 * self.style.speed, tol=0.005, pitch=np.pi / 2)
+        yield from self._move(grasp, yaw, GRIPPER_OPEN, speed, tol=0.005, pitch=pitch, check=check)
         self._acting = (miss, GRIPPER_CLOSE)
         for _ in range(FUMBLE_CLOSE_STEPS):
             yield self._servo(grasp, GRIPPER_OPEN)
