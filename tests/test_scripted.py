@@ -139,17 +139,16 @@ def test_fumble_draws_first_misses_and_leaves_the_demo_style_alone():
         make_policy("scripted", fumble=1.5)
 
 
-def test_expert_acts_out_a_missed_drawer_handle_and_grasps_it_again():
-    # A fumble closes the fingers 4 cm in front of the bar, in what is sent only: the returned actions (the demo's
-    # labels) keep heading for the bar with the fingers open. The drawer does not follow, so the expert opens,
-    # backs off and comes again; it then opens the drawer and stows the bowl.
-    env = gym.make("SafeLibero-Goal-Free-v0", max_episode_steps=400)
-    expert = make_policy("scripted")
+def _acted_out_episode(env, expert, options: dict, seed: int = 3000, handle_miss: np.ndarray | None = None):
+    """One episode of ``expert`` sending its :attr:`sent` action whenever it sets one, as the collection does;
+    returns the last info and the (label, sent) pairs of the acted-out steps. ``handle_miss`` replaces the drawn
+    one."""
     acted = []
     try:
-        obs, _ = env.reset(seed=3000, options={"task": 3, "init_state": 0})
-        expert.reset(seed=3000)
-        expert.handle_miss = np.array([0.0, -0.04, 0.0])
+        obs, _ = env.reset(seed=seed, options=options)
+        expert.reset(seed=seed)
+        if handle_miss is not None:
+            expert.handle_miss = handle_miss
         done, info = False, {}
         while not done:
             action = expert.act(obs)
@@ -159,6 +158,16 @@ def test_expert_acts_out_a_missed_drawer_handle_and_grasps_it_again():
             done = terminated or truncated
     finally:
         env.close()
+    return info, acted
+
+
+def test_expert_acts_out_a_missed_drawer_handle_and_grasps_it_again():
+    # A fumble closes the fingers 4 cm in front of the bar, in what is sent only: the returned actions (the demo's
+    # labels) keep heading for the bar with the fingers open. The drawer does not follow, so the expert opens,
+    # backs off and comes again; it then opens the drawer and stows the bowl.
+    expert = make_policy("scripted")
+    info, acted = _acted_out_episode(gym.make("SafeLibero-Goal-Free-v0", max_episode_steps=400), expert,
+                                     {"task": 3, "init_state": 0}, handle_miss=np.array([0.0, -0.04, 0.0]))
     assert info["is_success"]
     names = [name for name, _, _ in expert.trace]
     assert names.count("fumble") == 1 and names.count("handle-retry") == 1
@@ -170,21 +179,8 @@ def test_expert_acts_out_a_missed_pick_and_grasps_again():
     # A pick fumble sends the descent 2.5-4 cm beside the grasp point and closes the fingers there, while the labels
     # keep heading for the grasp point with the fingers open; the expert's own check (the hand ended above or
     # beside the grasp point) then backs off and grasps again. Long task 0 at this seed: a finger lands on the can.
-    env = gym.make("SafeLibero-Long-Free-v0")
     expert = make_policy("scripted", fumble=1.0)
-    acted = []
-    try:
-        obs, _ = env.reset(seed=3000, options={"task": 0})
-        expert.reset(seed=3000)
-        done, info = False, {}
-        while not done:
-            action = expert.act(obs)
-            if expert.sent is not None:
-                acted.append((action, expert.sent))
-            obs, _, terminated, truncated, info = env.step(action if expert.sent is None else expert.sent)
-            done = terminated or truncated
-    finally:
-        env.close()
+    info, acted = _acted_out_episode(gym.make("SafeLibero-Long-Free-v0"), expert, {"task": 0})
     assert info["is_success"]
     names = [name for name, _, _ in expert.trace]
     assert names.count("fumble") == 2 and names.count("regrasp") >= 2  # both picks of the task missed first
